@@ -42,7 +42,13 @@ pub fn euler_matrix_derivatives(euler_rad: Vec3) -> [Mat3; 3] {
         Mat3::from_rotation_x(pitch),
     );
     // d/dθ of a rotation about axis a is [a]x R.
-    let skew = |a: Vec3| Mat3::from_cols(Vec3::new(0.0, a.z, -a.y), Vec3::new(-a.z, 0.0, a.x), Vec3::new(a.y, -a.x, 0.0));
+    let skew = |a: Vec3| {
+        Mat3::from_cols(
+            Vec3::new(0.0, a.z, -a.y),
+            Vec3::new(-a.z, 0.0, a.x),
+            Vec3::new(a.y, -a.x, 0.0),
+        )
+    };
     [
         rz * (skew(Vec3::Y) * ry) * rx,
         rz * ry * (skew(Vec3::X) * rx),

@@ -25,7 +25,9 @@ pub enum FaceError {
     #[error("invalid input: {0}")]
     InvalidInput(String),
 
-    #[error("unknown blendshape name `{0}` (expected one of the 53 ICT names or the 52 ARKit names)")]
+    #[error(
+        "unknown blendshape name `{0}` (expected one of the 53 ICT names or the 52 ARKit names)"
+    )]
     UnknownBlendshape(String),
 }
 

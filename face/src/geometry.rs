@@ -110,7 +110,11 @@ fn triangle_frame(a: Vec3, b: Vec3, c: Vec3) -> Mat3 {
     let e2 = c - a;
     let n = e1.cross(e2);
     let len = n.length();
-    let e3 = if len > 0.0 { n / len.sqrt() } else { Vec3::ZERO };
+    let e3 = if len > 0.0 {
+        n / len.sqrt()
+    } else {
+        Vec3::ZERO
+    };
     Mat3::from_cols(e1, e2, e3)
 }
 

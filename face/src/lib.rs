@@ -25,6 +25,6 @@ pub mod template;
 pub mod uv;
 
 pub use error::{FaceError, Result};
-pub use names::{ARKIT_NAMES, ICT_NAMES, NUM_ARKIT, NUM_BLENDSHAPES};
 pub use model::{BlendshapeWeights, FaceModel, PersonalCorrections, PersonalizedBlendshapes};
+pub use names::{ARKIT_NAMES, ICT_NAMES, NUM_ARKIT, NUM_BLENDSHAPES};
 pub use template::{NUM_LANDMARKS, Template};

@@ -105,7 +105,9 @@ impl PersonalCorrections {
                 )));
             }
             if !m.is_finite() {
-                return Err(FaceError::InvalidInput(format!("{name} has NaN or infinite values")));
+                return Err(FaceError::InvalidInput(format!(
+                    "{name} has NaN or infinite values"
+                )));
             }
             Ok(())
         };
@@ -120,9 +122,12 @@ impl PersonalCorrections {
         }
         check("dS_0".into(), &self.identity_shape)?;
         check("dR_0".into(), &self.static_albedo)?;
-        for i in 0..NUM_BLENDSHAPES {
-            check(format!("dS of {}", ICT_NAMES[i]), &self.expression_shapes[i])?;
-            check(format!("dR of {}", ICT_NAMES[i]), &self.dynamic_albedo[i])?;
+        for (name, (shape, albedo)) in ICT_NAMES
+            .iter()
+            .zip(self.expression_shapes.iter().zip(&self.dynamic_albedo))
+        {
+            check(format!("dS of {name}"), shape)?;
+            check(format!("dR of {name}"), albedo)?;
         }
         Ok(())
     }
@@ -148,7 +153,10 @@ impl FaceModel {
     }
 
     /// Samples a person's shape corrections into per-vertex blendshapes.
-    pub fn personalize(&self, corrections: &PersonalCorrections) -> Result<PersonalizedBlendshapes> {
+    pub fn personalize(
+        &self,
+        corrections: &PersonalCorrections,
+    ) -> Result<PersonalizedBlendshapes> {
         corrections.validate()?;
         let v = self.template.vertex_count();
         let identity = self.sampler.sample_vec3(&corrections.identity_shape);
@@ -206,8 +214,8 @@ impl FaceModel {
             let dynamic = &corrections.dynamic_albedo[i];
             for (t, out) in correction.data.chunks_exact_mut(3).enumerate() {
                 let a = mask.data[t];
-                for c in 0..3 {
-                    out[c] += w * a * dynamic.data[t * 3 + c];
+                for (o, d) in out.iter_mut().zip(&dynamic.data[t * 3..t * 3 + 3]) {
+                    *o += w * a * d;
                 }
             }
         }
@@ -261,7 +269,9 @@ impl PersonalizedBlendshapes {
             .0
             .iter()
             .enumerate()
-            .fold(self.base[v], |acc, (i, &w)| acc + w * self.deltas[i * self.vertex_count + v])
+            .fold(self.base[v], |acc, (i, &w)| {
+                acc + w * self.deltas[i * self.vertex_count + v]
+            })
     }
 
     /// dS(v)/dw_i: equation (2) is linear in w, so this is the blendshape's delta.
@@ -275,7 +285,9 @@ impl PersonalizedBlendshapes {
         template: &Template,
         weights: &BlendshapeWeights,
     ) -> [Vec3; NUM_LANDMARKS] {
-        template.landmarks_68.map(|v| self.vertex(v as usize, weights))
+        template
+            .landmarks_68
+            .map(|v| self.vertex(v as usize, weights))
     }
 
     /// Magnitude of the personal correction of blendshape `i` relative to `template`, per

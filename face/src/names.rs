@@ -199,10 +199,16 @@ pub fn arkit_to_ict(arkit: &[f32; NUM_ARKIT]) -> [f32; NUM_BLENDSHAPES] {
 /// one index, or both halves for `browInnerUp`/`cheekPuff`.
 pub fn resolve_user_name(name: &str) -> Result<Vec<usize>> {
     let lower = name.trim().to_ascii_lowercase();
-    if let Some(i) = ICT_NAMES.iter().position(|n| n.to_ascii_lowercase() == lower) {
+    if let Some(i) = ICT_NAMES
+        .iter()
+        .position(|n| n.to_ascii_lowercase() == lower)
+    {
         return Ok(vec![i]);
     }
-    if let Some(a) = ARKIT_NAMES.iter().position(|n| n.to_ascii_lowercase() == lower) {
+    if let Some(a) = ARKIT_NAMES
+        .iter()
+        .position(|n| n.to_ascii_lowercase() == lower)
+    {
         let sources = arkit_sources(a);
         if !sources.is_empty() {
             return Ok(sources.to_vec());
@@ -212,6 +218,8 @@ pub fn resolve_user_name(name: &str) -> Result<Vec<usize>> {
 }
 
 #[cfg(test)]
+// Tests index parallel arrays (names, weights) by position on purpose.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 
@@ -241,8 +249,8 @@ mod tests {
         }
         arkit[arkit_index("tongueOut").unwrap()] = 0.0;
         let back = ict_to_arkit(&arkit_to_ict(&arkit));
-        for a in 0..NUM_ARKIT {
-            assert!((back[a] - arkit[a]).abs() < 1e-6, "{}", ARKIT_NAMES[a]);
+        for (a, name) in ARKIT_NAMES.iter().enumerate() {
+            assert!((back[a] - arkit[a]).abs() < 1e-6, "{name}");
         }
     }
 
@@ -256,7 +264,10 @@ mod tests {
 
     #[test]
     fn user_names_resolve_in_any_spelling() {
-        assert_eq!(resolve_user_name("JAWOPEN").unwrap(), vec![ict_index("jawOpen").unwrap()]);
+        assert_eq!(
+            resolve_user_name("JAWOPEN").unwrap(),
+            vec![ict_index("jawOpen").unwrap()]
+        );
         assert_eq!(
             resolve_user_name("eyeBlinkLeft").unwrap(),
             vec![ict_index("eyeBlink_L").unwrap()]

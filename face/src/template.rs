@@ -239,7 +239,10 @@ impl Template {
                 .tensor(name)
                 .map_err(|_| malformed(format!("missing tensor `{name}`")))?;
             if view.dtype() != Dtype::F32 {
-                return Err(malformed(format!("tensor `{name}` is {:?}, expected F32", view.dtype())));
+                return Err(malformed(format!(
+                    "tensor `{name}` is {:?}, expected F32",
+                    view.dtype()
+                )));
             }
             let shape = view.shape().to_vec();
             if shape.len() < shape_tail.len() || !shape.ends_with(shape_tail) {
@@ -259,7 +262,10 @@ impl Template {
                 .tensor(name)
                 .map_err(|_| malformed(format!("missing tensor `{name}`")))?;
             if view.dtype() != Dtype::I32 {
-                return Err(malformed(format!("tensor `{name}` is {:?}, expected I32", view.dtype())));
+                return Err(malformed(format!(
+                    "tensor `{name}` is {:?}, expected I32",
+                    view.dtype()
+                )));
             }
             let shape = view.shape().to_vec();
             if shape.len() < shape_tail.len() || !shape.ends_with(shape_tail) {
@@ -348,11 +354,14 @@ impl RawTemplate {
             reason,
         };
         let v = self.neutral.len() / 3;
-        if v == 0 || self.neutral.len() % 3 != 0 {
+        if v == 0 || !self.neutral.len().is_multiple_of(3) {
             return Err(malformed("the neutral mesh has no vertices".into()));
         }
         if let Some(bad) = self.neutral.iter().position(|x| !x.is_finite()) {
-            return Err(malformed(format!("neutral vertex {} is not finite", bad / 3)));
+            return Err(malformed(format!(
+                "neutral vertex {} is not finite",
+                bad / 3
+            )));
         }
         // Expressions by name, so a source with another order or extra shapes still works.
         let by_name: HashMap<&str, usize> = self
@@ -371,23 +380,29 @@ impl RawTemplate {
         let mut expression_deltas = Vec::with_capacity(NUM_BLENDSHAPES * v);
         for name in ICT_NAMES {
             let &src = by_name.get(name).ok_or_else(|| {
-                malformed(format!("expression `{name}` (one of the 53 ICT blendshapes) is missing"))
+                malformed(format!(
+                    "expression `{name}` (one of the 53 ICT blendshapes) is missing"
+                ))
             })?;
             let block = &self.expression_deltas[src * v * 3..(src + 1) * v * 3];
             if block.iter().any(|x| !x.is_finite()) {
-                return Err(malformed(format!("expression `{name}` has non-finite values")));
+                return Err(malformed(format!(
+                    "expression `{name}` has non-finite values"
+                )));
             }
             expression_deltas.extend(to_vec3(block));
         }
         if self.identity_deltas.len() != self.identity_count * v * 3 {
-            return Err(malformed("identity deltas do not match the vertex count".into()));
+            return Err(malformed(
+                "identity deltas do not match the vertex count".into(),
+            ));
         }
         let uvs: Vec<Vec2> = self.uvs.chunks_exact(2).map(Vec2::from_slice).collect();
         if uvs.iter().any(|u| !u.is_finite()) {
             return Err(malformed("texture coordinates are not finite".into()));
         }
         let check_indices = |what: &str, flat: &[i32], bound: usize| -> Result<Vec<[u32; 3]>> {
-            if flat.len() % 3 != 0 || flat.is_empty() {
+            if !flat.len().is_multiple_of(3) || flat.is_empty() {
                 return Err(malformed(format!("{what} is empty or not a multiple of 3")));
             }
             flat.chunks_exact(3)
@@ -410,7 +425,9 @@ impl RawTemplate {
         let triangles = check_indices("triangles", &self.triangles, v)?;
         let triangle_uvs = check_indices("triangle_uvs", &self.triangle_uvs, uvs.len())?;
         if self.triangle_polygon.len() != triangles.len() {
-            return Err(malformed("triangle_polygon length differs from triangles".into()));
+            return Err(malformed(
+                "triangle_polygon length differs from triangles".into(),
+            ));
         }
         if self.landmarks_68.len() != NUM_LANDMARKS {
             return Err(malformed(format!(
@@ -421,13 +438,18 @@ impl RawTemplate {
         let mut landmarks_68 = [0u32; NUM_LANDMARKS];
         for (k, &l) in self.landmarks_68.iter().enumerate() {
             if l as usize >= v {
-                return Err(malformed(format!("landmark {k} refers to vertex {l} of {v}")));
+                return Err(malformed(format!(
+                    "landmark {k} refers to vertex {l} of {v}"
+                )));
             }
             landmarks_68[k] = l;
         }
         for p in &self.parts {
             if p.vertices.end as usize > v || p.vertices.start > p.vertices.end {
-                return Err(malformed(format!("part `{}` has vertex range {:?}", p.name, p.vertices)));
+                return Err(malformed(format!(
+                    "part `{}` has vertex range {:?}",
+                    p.name, p.vertices
+                )));
             }
         }
         Ok(Template {

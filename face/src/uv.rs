@@ -194,7 +194,9 @@ pub fn gaussian_blur(map: &UvMap, sigma: f32) -> UvMap {
                     acc[c] += kv * src[c];
                 }
             }
-            result.texel_mut(x as usize, y as usize).copy_from_slice(&acc);
+            result
+                .texel_mut(x as usize, y as usize)
+                .copy_from_slice(&acc);
         }
     }
     result
@@ -246,7 +248,13 @@ mod tests {
     fn blur_preserves_a_constant_and_the_mass_of_an_impulse() {
         let constant = UvMap::from_fn(20, 20, 2, |_| vec![0.7, -1.0]);
         let blurred = gaussian_blur(&constant, 1.5);
-        assert!(blurred.data.iter().zip(&constant.data).all(|(a, b)| (a - b).abs() < 1e-5));
+        assert!(
+            blurred
+                .data
+                .iter()
+                .zip(&constant.data)
+                .all(|(a, b)| (a - b).abs() < 1e-5)
+        );
         let mut impulse = UvMap::zeros(21, 21, 1);
         impulse.texel_mut(10, 10)[0] = 1.0;
         let spread = gaussian_blur(&impulse, 1.0);

@@ -2,6 +2,9 @@
 //! independent expectation (a literal transcription of the paper, an analytic value or a
 //! finite difference).
 
+// The checks index several parallel arrays by blendshape or coordinate on purpose.
+#![allow(clippy::needless_range_loop)]
+
 use std::sync::OnceLock;
 
 use face::camera::{HeadPose, Intrinsics, project_with_jacobians};
@@ -9,7 +12,9 @@ use face::geometry::{Adjacency, blendshape_gradient_loss, deformation_gradients,
 use face::masks::{MASK_THRESHOLD_CM, vertex_attention};
 use face::sampling::sample_sites;
 use face::uv::{CORRECTION_SIZE, UvMap};
-use face::{BlendshapeWeights, FaceModel, ICT_NAMES, NUM_BLENDSHAPES, PersonalCorrections, Template};
+use face::{
+    BlendshapeWeights, FaceModel, ICT_NAMES, NUM_BLENDSHAPES, PersonalCorrections, Template,
+};
 use glam::{Mat3, Vec2, Vec3};
 
 fn model() -> &'static FaceModel {
@@ -47,17 +52,27 @@ fn smooth_map(seed: u32, amplitude: f32) -> UvMap {
 fn random_corrections() -> PersonalCorrections {
     PersonalCorrections {
         identity_shape: smooth_map(1, 0.3),
-        expression_shapes: (0..NUM_BLENDSHAPES).map(|i| smooth_map(100 + 7 * i as u32, 0.2)).collect(),
+        expression_shapes: (0..NUM_BLENDSHAPES)
+            .map(|i| smooth_map(100 + 7 * i as u32, 0.2))
+            .collect(),
         static_albedo: smooth_map(5, 0.05),
-        dynamic_albedo: (0..NUM_BLENDSHAPES).map(|i| smooth_map(900 + 5 * i as u32, 0.1)).collect(),
+        dynamic_albedo: (0..NUM_BLENDSHAPES)
+            .map(|i| smooth_map(900 + 5 * i as u32, 0.1))
+            .collect(),
     }
 }
 
 fn sparse_weights() -> BlendshapeWeights {
     let mut w = [0.0; NUM_BLENDSHAPES];
-    for (i, name) in ["jawOpen", "mouthSmile_L", "eyeBlink_R", "browInnerUp_L", "cheekPuff_R"]
-        .iter()
-        .enumerate()
+    for (i, name) in [
+        "jawOpen",
+        "mouthSmile_L",
+        "eyeBlink_R",
+        "browInnerUp_L",
+        "cheekPuff_R",
+    ]
+    .iter()
+    .enumerate()
     {
         w[face::names::ict_index(name).unwrap()] = 0.2 + 0.15 * i as f32;
     }
@@ -93,7 +108,9 @@ fn equation_2_with_corrections_matches_the_papers_formula() {
     let sites = sample_sites(t);
     // F written literally: weight * bilinear sample of the (masked) map at the site's UV.
     let f = |map: &UvMap, v: usize| -> Vec3 {
-        sites[v].map_or(Vec3::ZERO, |s| s.weight * Vec3::from_slice(&map.sample(s.uv)))
+        sites[v].map_or(Vec3::ZERO, |s| {
+            s.weight * Vec3::from_slice(&map.sample(s.uv))
+        })
     };
     let masked: Vec<UvMap> = (0..NUM_BLENDSHAPES)
         .map(|i| {
@@ -113,12 +130,20 @@ fn equation_2_with_corrections_matches_the_papers_formula() {
             let s_i = t.neutral[v] + t.expression_delta(i)[v];
             expected += w.0[i] * (s_i + f(&masked[i], v));
         }
-        assert!((shape[v] - expected).length() < 1e-4, "vertex {v}: {} vs {}", shape[v], expected);
+        assert!(
+            (shape[v] - expected).length() < 1e-4,
+            "vertex {v}: {} vs {}",
+            shape[v],
+            expected
+        );
         if (shape[v] - m.template_blendshapes().vertex(v, &w)).length() > 1e-3 {
             checked_corrected += 1;
         }
     }
-    assert!(checked_corrected > 100, "the corrections must actually move vertices");
+    assert!(
+        checked_corrected > 100,
+        "the corrections must actually move vertices"
+    );
 }
 
 #[test]
@@ -136,7 +161,10 @@ fn rigid_parts_get_no_correction_and_stitched_parts_follow_the_face() {
     let correction = |v: usize| person.base[v] - t.neutral[v];
     let mut seams = 0;
     for tri in &t.triangles {
-        let Some(&h) = tri.iter().find(|&&v| t.vertex_part(v) == Some("head_and_neck")) else {
+        let Some(&h) = tri
+            .iter()
+            .find(|&&v| t.vertex_part(v) == Some("head_and_neck"))
+        else {
             continue;
         };
         if !tri.iter().any(|v| face.contains(v)) {
@@ -178,7 +206,10 @@ fn a_vertex_on_a_uv_seam_samples_one_uv() {
             assert_eq!(chosen[v], Some(t.uvs[distinct[0] as usize]));
         }
     }
-    assert!(seam_vertices > 0, "the face part has UV seams (the ears and the mouth)");
+    assert!(
+        seam_vertices > 0,
+        "the face part has UV seams (the ears and the mouth)"
+    );
 }
 
 #[test]
@@ -214,7 +245,10 @@ fn mask_support_is_the_set_of_vertices_that_move() {
             if moving[v] {
                 assert!(a > 0.0, "{name}: moving vertex {v} has mask 0");
             } else if moving_uvs.iter().all(|m| m.distance(uv) > far) {
-                assert!(a < 1e-6, "{name}: static vertex {v} far from the support has mask {a}");
+                assert!(
+                    a < 1e-6,
+                    "{name}: static vertex {v} far from the support has mask {a}"
+                );
                 zeros_checked += 1;
             }
         }
@@ -238,7 +272,8 @@ fn equation_3_albedo() {
     // sampled at the texel centre (sampling is linear, so the order does not matter).
     for &(x, y) in &[(10usize, 20usize), (32, 40), (50, 33)] {
         let uv = face::uv::texel_center_uv(x, y, 64, 64);
-        let mut expected = Vec3::from_slice(r0.texel(x, y)) + Vec3::from_slice(&corrections.static_albedo.sample(uv));
+        let mut expected = Vec3::from_slice(r0.texel(x, y))
+            + Vec3::from_slice(&corrections.static_albedo.sample(uv));
         for i in 0..NUM_BLENDSHAPES {
             let mut product = corrections.dynamic_albedo[i].clone();
             for (k, px) in product.data.chunks_exact_mut(3).enumerate() {
@@ -248,7 +283,10 @@ fn equation_3_albedo() {
             expected += w.0[i] * Vec3::from_slice(&product.sample(uv));
         }
         let got = Vec3::from_slice(albedo.texel(x, y));
-        assert!((got - expected).length() < 1e-5, "texel {x},{y}: {got} vs {expected}");
+        assert!(
+            (got - expected).length() < 1e-5,
+            "texel {x},{y}: {got} vs {expected}"
+        );
     }
 }
 
@@ -260,9 +298,14 @@ fn weights_are_validated() {
     let (w, report) = BlendshapeWeights::from_slice_clamped(&values).unwrap();
     assert_eq!(w.0[3], 1.0);
     assert_eq!(w.0[7], 0.0);
-    assert_eq!(report.clamped, vec![(ICT_NAMES[3], 1.5), (ICT_NAMES[7], -0.2)]);
+    assert_eq!(
+        report.clamped,
+        vec![(ICT_NAMES[3], 1.5), (ICT_NAMES[7], -0.2)]
+    );
     values[0] = f32::NAN;
-    let err = BlendshapeWeights::from_slice_clamped(&values).unwrap_err().to_string();
+    let err = BlendshapeWeights::from_slice_clamped(&values)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains(ICT_NAMES[0]), "{err}");
     assert!(BlendshapeWeights::from_slice_clamped(&values[..10]).is_err());
 
@@ -294,15 +337,25 @@ fn equation_2_jacobian_matches_finite_differences() {
 fn deformation_gradient_of_a_rigid_rotation_is_that_rotation() {
     let t = &model().template;
     let rotation = Mat3::from_axis_angle(Vec3::new(0.3, -0.5, 0.8).normalize(), 0.7);
-    let rotated: Vec<Vec3> = t.neutral.iter().map(|p| rotation * *p + Vec3::new(1.0, 2.0, 3.0)).collect();
+    let rotated: Vec<Vec3> = t
+        .neutral
+        .iter()
+        .map(|p| rotation * *p + Vec3::new(1.0, 2.0, 3.0))
+        .collect();
     let tris: Vec<[u32; 3]> = t.face_triangles().map(|k| t.triangles[k]).collect();
     let g = deformation_gradients(&t.neutral, &rotated, &tris);
     for gi in g.iter().step_by(17) {
-        assert!((*gi - rotation).abs_diff_eq(Mat3::ZERO, 1e-3), "{gi} vs {rotation}");
+        assert!(
+            (*gi - rotation).abs_diff_eq(Mat3::ZERO, 1e-3),
+            "{gi} vs {rotation}"
+        );
     }
     // Uniform scaling by s gives s I (the fourth vertex scales like the edges).
     let scaled: Vec<Vec3> = t.neutral.iter().map(|p| 1.7 * *p).collect();
-    for gi in deformation_gradients(&t.neutral, &scaled, &tris).iter().step_by(17) {
+    for gi in deformation_gradients(&t.neutral, &scaled, &tris)
+        .iter()
+        .step_by(17)
+    {
         assert!((*gi - 1.7 * Mat3::IDENTITY).abs_diff_eq(Mat3::ZERO, 1e-3));
     }
 }
@@ -313,14 +366,21 @@ fn blendshape_gradient_loss_is_zero_for_the_template_and_grows_with_a_correction
     let t = &m.template;
     let i = face::names::ict_index("jawOpen").unwrap();
     let tris: Vec<[u32; 3]> = t.face_triangles().map(|k| t.triangles[k]).collect();
-    let s_i: Vec<Vec3> = t.neutral.iter().zip(t.expression_delta(i)).map(|(a, d)| *a + *d).collect();
+    let s_i: Vec<Vec3> = t
+        .neutral
+        .iter()
+        .zip(t.expression_delta(i))
+        .map(|(a, d)| *a + *d)
+        .collect();
     assert!(blendshape_gradient_loss(&t.neutral, &s_i, &s_i, &tris) < 1e-6);
     let mut last = 0.0;
     for scale in [0.05f32, 0.1, 0.2] {
         let bent: Vec<Vec3> = s_i
             .iter()
             .enumerate()
-            .map(|(v, p)| *p + scale * Vec3::new((v as f32 * 0.37).sin(), 0.0, (v as f32 * 0.11).cos()))
+            .map(|(v, p)| {
+                *p + scale * Vec3::new((v as f32 * 0.37).sin(), 0.0, (v as f32 * 0.11).cos())
+            })
             .collect();
         let loss = blendshape_gradient_loss(&t.neutral, &s_i, &bent, &tris);
         assert!(loss > last, "{loss} must grow past {last}");
@@ -339,7 +399,9 @@ fn laplacian_smoothness_and_its_gradient() {
     assert_eq!(adj.smoothness_loss(&constant), 0.0);
     assert!(adj.laplacian(&constant).iter().all(|l| l.length() < 1e-6));
     // Gradient by central differences on a few coordinates.
-    let x: Vec<Vec3> = (0..face).map(|v| Vec3::new(noise(v as u32), noise(v as u32 + 9), 0.0) * 0.1).collect();
+    let x: Vec<Vec3> = (0..face)
+        .map(|v| Vec3::new(noise(v as u32), noise(v as u32 + 9), 0.0) * 0.1)
+        .collect();
     let grad = adj.smoothness_gradient(&x);
     let h = 1e-3;
     for v in [5usize, 400, 3000] {
@@ -347,8 +409,13 @@ fn laplacian_smoothness_and_its_gradient() {
         plus[v].x += h;
         let mut minus = x.clone();
         minus[v].x -= h;
-        let fd = (adj.smoothness_loss(&plus) as f64 - adj.smoothness_loss(&minus) as f64) / (2.0 * h as f64);
-        assert!((fd as f32 - grad[v].x).abs() < 2e-2 * (1.0 + grad[v].x.abs()), "{v}: {fd} vs {}", grad[v].x);
+        let fd = (adj.smoothness_loss(&plus) as f64 - adj.smoothness_loss(&minus) as f64)
+            / (2.0 * h as f64);
+        assert!(
+            (fd as f32 - grad[v].x).abs() < 2e-2 * (1.0 + grad[v].x.abs()),
+            "{v}: {fd} vs {}",
+            grad[v].x
+        );
     }
 }
 
@@ -382,13 +449,20 @@ fn projection_jacobians_match_finite_differences() {
             b.translation[j - 3] -= h;
         }
         let fd = (proj(&a, p) - proj(&b, p)) / (2.0 * h);
-        assert!((fd - d_pose[j]).length() < 1e-2 * (1.0 + fd.length()), "pose {j}: {fd} vs {}", d_pose[j]);
+        assert!(
+            (fd - d_pose[j]).length() < 1e-2 * (1.0 + fd.length()),
+            "pose {j}: {fd} vs {}",
+            d_pose[j]
+        );
     }
     for j in 0..3 {
         let mut e = Vec3::ZERO;
         e[j] = h;
         let fd = (proj(&pose, p + e) - proj(&pose, p - e)) / (2.0 * h);
-        assert!((fd - d_point[j]).length() < 1e-2 * (1.0 + fd.length()), "point {j}");
+        assert!(
+            (fd - d_point[j]).length() < 1e-2 * (1.0 + fd.length()),
+            "point {j}"
+        );
     }
 }
 
@@ -424,7 +498,11 @@ fn constant_sh_light_shades_every_normal_alike_and_gradients_match() {
         let (a, b) = (face::sh::sh_basis(n + e), face::sh::sh_basis(n - e));
         for k in 0..9 {
             let fd = (a[k] - b[k]) / (2.0 * h);
-            assert!((fd - grad[k][j]).abs() < 1e-3, "Y{k} d{j}: {fd} vs {}", grad[k][j]);
+            assert!(
+                (fd - grad[k][j]).abs() < 1e-3,
+                "Y{k} d{j}: {fd} vs {}",
+                grad[k][j]
+            );
         }
     }
     // The studio light is brighter on a surface facing its key light than facing away.

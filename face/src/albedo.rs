@@ -1,0 +1,1 @@
+//! Procedural mean albedo R_0. Being written.

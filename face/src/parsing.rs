@@ -1,0 +1,1 @@
+//! UV face-parsing map T. Being written.
