@@ -79,18 +79,57 @@ pub fn constant_light(level: f32) -> [f32; SH_COEFFICIENTS] {
     gamma
 }
 
-/// A pleasant default: soft ambient plus a key light from the upper front left of the
-/// subject (the viewer's upper right is the subject's left, +x).
-pub fn studio_light() -> [f32; SH_COEFFICIENTS] {
-    let mut gamma = constant_light(0.8);
-    let (a1c1,) = (a1() * c1(),);
-    // A first-order lobe towards direction d adds s * (d . n) to the irradiance.
-    let d = Vec3::new(0.35, 0.45, 0.82).normalize();
-    let s = 0.35 / a1c1;
-    for c in 0..3 {
-        gamma[c * 9 + 1] = -s * d.y;
-        gamma[c * 9 + 2] = s * d.z;
-        gamma[c * 9 + 3] = -s * d.x;
+/// Order-2 SH approximation of a distant light: irradiance `rgb * max(0, n . direction)`,
+/// `direction` pointing from the surface towards the light.
+///
+/// Each basis function is Y_k = ±a_l R_k with R_k the orthonormal real SH, and the clamped
+/// cosine has SH transfer factors (pi, 2pi/3, pi/4) per band, so
+/// gamma_k = factor_l Y_k(d) / a_l^2.
+pub fn directional_light(direction: Vec3, rgb: [f32; 3]) -> [f32; SH_COEFFICIENTS] {
+    let d = direction.normalize_or(Vec3::Z);
+    let y = sh_basis(d);
+    let band_factor = |k: usize| -> f32 {
+        match k {
+            0 => PI / (A0 * A0),
+            1..=3 => (2.0 * PI / 3.0) / (a1() * a1()),
+            _ => (PI / 4.0) / (a2() * a2()),
+        }
+    };
+    let mut gamma = [0.0; SH_COEFFICIENTS];
+    for (c, intensity) in rgb.iter().enumerate() {
+        for (k, yk) in y.iter().enumerate() {
+            gamma[c * 9 + k] = intensity * band_factor(k) * yk;
+        }
     }
     gamma
+}
+
+/// A pleasant neutral studio light: soft ambient plus a slightly warm key light from the
+/// upper front left as the camera sees it.
+pub fn studio_light() -> [f32; SH_COEFFICIENTS] {
+    let key = directional_light(KEY_LIGHT_DIRECTION, [0.52, 0.5, 0.47]);
+    let ambient_level = [0.56, 0.57, 0.6];
+    let mut gamma = [0.0; SH_COEFFICIENTS];
+    for (i, g) in gamma.iter_mut().enumerate() {
+        *g = constant_light(ambient_level[i / 9])[i] + key[i];
+    }
+    gamma
+}
+
+/// Direction towards the key light of [`studio_light`].
+pub const KEY_LIGHT_DIRECTION: Vec3 = Vec3::new(-0.5, 0.55, 0.75);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn directional_light_approximates_the_clamped_cosine() {
+        let d = Vec3::new(-0.5, 0.5, 0.7).normalize();
+        let gamma = directional_light(d, [1.0; 3]);
+        // Order-2 SH reproduces the clamped cosine to within ~0.1 everywhere.
+        assert!((irradiance(d, &gamma).x - 1.0).abs() < 0.1);
+        assert!(irradiance(-d, &gamma).x.abs() < 0.1);
+        assert!(irradiance(Vec3::Y, &gamma).x > irradiance(Vec3::NEG_Y, &gamma).x + 0.3);
+    }
 }

@@ -507,7 +507,8 @@ fn constant_sh_light_shades_every_normal_alike_and_gradients_match() {
     }
     // The studio light is brighter on a surface facing its key light than facing away.
     let studio = face::sh::studio_light();
-    let lit = face::sh::irradiance(Vec3::new(0.35, 0.45, 0.82).normalize(), &studio);
-    let dark = face::sh::irradiance(Vec3::new(-0.35, -0.45, 0.82).normalize(), &studio);
+    let key = face::sh::KEY_LIGHT_DIRECTION.normalize();
+    let lit = face::sh::irradiance(key, &studio);
+    let dark = face::sh::irradiance(Vec3::new(-key.x, -key.y, key.z), &studio);
     assert!(lit.x > dark.x + 0.2);
 }

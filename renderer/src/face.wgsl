@@ -1,0 +1,323 @@
+// Blendshape face renderer.
+//
+// WebGL2-compatible on purpose: no storage buffers, no compute. All per-vertex geometry
+// lives in one Rgba32Float data texture read with textureLoad by vertex index, and the
+// active blendshape weights arrive as a compact (index, weight) list in a uniform buffer,
+// so the vertex shader only loops over the shapes that are actually switched on.
+
+// Must match MAX_BLENDSHAPES / 2 on the Rust side: two (index, weight) pairs per vec4.
+const WEIGHT_VEC4S: u32 = 128u;
+
+// View modes; must match ViewMode::shader_id on the Rust side.
+const MODE_SHADED: u32 = 0u;
+const MODE_ALBEDO: u32 = 1u;
+const MODE_NORMALS: u32 = 2u;
+const MODE_WIREFRAME: u32 = 3u;
+const MODE_LANDMARKS: u32 = 4u;
+const MODE_MASK_HEATMAP: u32 = 5u;
+const MODE_VERTEX_HEATMAP: u32 = 6u;
+
+const FLAG_HAS_MASK: u32 = 1u;
+const FLAG_HAS_SCALARS: u32 = 2u;
+
+struct Frame {
+    view_from_model: mat4x4<f32>,
+    clip_from_view: mat4x4<f32>,
+    // 27 SH coefficients [r0..r8, g0..g8, b0..b8], padded to 28.
+    sh: array<vec4<f32>, 7>,
+    background: vec4<f32>,
+    // x: view mode, y: flags, z: data texture width, w: vertex count V
+    mode: vec4<u32>,
+    // x: heatmap max, y: face opacity, z: viewport width px, w: viewport height px
+    params: vec4<f32>,
+    // x: blendshape count K, y: scalar texture width
+    counts: vec4<u32>,
+}
+
+struct Weights {
+    // x: number of active (index, weight) pairs
+    count: vec4<u32>,
+    pairs: array<vec4<f32>, WEIGHT_VEC4S>,
+}
+
+@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(1) var<uniform> weights: Weights;
+@group(0) @binding(2) var data_tex: texture_2d<f32>;
+@group(0) @binding(3) var scalar_tex: texture_2d<f32>;
+@group(0) @binding(4) var albedo_tex: texture_2d_array<f32>;
+@group(0) @binding(5) var mask_tex: texture_2d<f32>;
+@group(0) @binding(6) var overlay_tex: texture_2d<f32>;
+@group(0) @binding(7) var lin_sampler: sampler;
+
+fn data_texel(i: u32) -> vec4<f32> {
+    let w = frame.mode.z;
+    return textureLoad(data_tex, vec2<i32>(i32(i % w), i32(i / w)), 0);
+}
+
+struct Blended {
+    pos: vec3<f32>,
+    nrm: vec3<f32>,
+}
+
+// Data texture layout (texel index): [0, V) base positions, [V, 2V) base normals,
+// [(2 + k) V + v] position delta of shape k, [(2 + K + k) V + v] normal delta of shape k.
+// Shape-major so that neighbouring vertices read neighbouring texels in every iteration.
+fn blend_vertex(v: u32) -> Blended {
+    let nv = frame.mode.w;
+    let k_total = frame.counts.x;
+    var p = data_texel(v).xyz;
+    var n = data_texel(nv + v).xyz;
+    let count = weights.count.x;
+    for (var i = 0u; i < count; i++) {
+        let pair = weights.pairs[i / 2u];
+        let iw = select(pair.xy, pair.zw, (i & 1u) == 1u);
+        let s = u32(iw.x);
+        p += iw.y * data_texel((2u + s) * nv + v).xyz;
+        n += iw.y * data_texel((2u + k_total + s) * nv + v).xyz;
+    }
+    // Blended normals are renormalised; a degenerate sum falls back to "towards camera".
+    let len = length(n);
+    let nrm = select(vec3<f32>(0.0, 0.0, 1.0), n / max(len, 1e-20), len > 1e-12);
+    return Blended(p, nrm);
+}
+
+fn view_normal(n: vec3<f32>) -> vec3<f32> {
+    // view_from_model is a rigid transform (possibly uniformly scaled), so its upper 3x3
+    // maps normals correctly up to length.
+    return normalize((frame.view_from_model * vec4<f32>(n, 0.0)).xyz);
+}
+
+fn scalar_at(v: u32) -> f32 {
+    let w = frame.counts.y;
+    return textureLoad(scalar_tex, vec2<i32>(i32(v % w), i32(v / w)), 0).x;
+}
+
+// ---------------------------------------------------------------------------------------
+// Mesh (filled triangles)
+
+struct MeshOut {
+    // Invariant so the depth pre-pass and the colour pass produce bit-identical depth.
+    @invariant @builtin(position) clip: vec4<f32>,
+    @location(0) normal_view: vec3<f32>,
+    @location(1) uv: vec2<f32>,
+    @location(2) @interpolate(flat) layer: u32,
+    @location(3) scalar: f32,
+}
+
+@vertex
+fn vs_mesh(
+    @location(0) vertex: u32,
+    @location(1) layer: u32,
+    @location(2) uv: vec2<f32>,
+) -> MeshOut {
+    let b = blend_vertex(vertex);
+    var out: MeshOut;
+    out.clip = frame.clip_from_view * (frame.view_from_model * vec4<f32>(b.pos, 1.0));
+    out.normal_view = view_normal(b.nrm);
+    out.uv = uv;
+    out.layer = layer;
+    out.scalar = scalar_at(vertex);
+    return out;
+}
+
+fn sh_irradiance(n: vec3<f32>) -> vec3<f32> {
+    let pi = 3.14159265358979;
+    let a0 = pi;
+    let a1 = 2.0 * pi / sqrt(3.0);
+    let a2 = 2.0 * pi / sqrt(8.0);
+    let c0 = 1.0 / sqrt(4.0 * pi);
+    let c1 = sqrt(3.0) / sqrt(4.0 * pi);
+    let c2 = 3.0 * sqrt(5.0) / sqrt(12.0 * pi);
+    var y: array<f32, 9>;
+    y[0] = a0 * c0;
+    y[1] = -a1 * c1 * n.y;
+    y[2] = a1 * c1 * n.z;
+    y[3] = -a1 * c1 * n.x;
+    y[4] = a2 * c2 * n.x * n.y;
+    y[5] = -a2 * c2 * n.y * n.z;
+    y[6] = a2 * c2 * 0.5 / sqrt(3.0) * (3.0 * n.z * n.z - 1.0);
+    y[7] = -a2 * c2 * n.x * n.z;
+    y[8] = a2 * c2 * 0.5 * (n.x * n.x - n.y * n.y);
+    var e = vec3<f32>(0.0);
+    for (var k = 0u; k < 9u; k++) {
+        e += y[k] * vec3<f32>(sh_coef(k), sh_coef(9u + k), sh_coef(18u + k));
+    }
+    return e;
+}
+
+fn sh_coef(i: u32) -> f32 {
+    return frame.sh[i / 4u][i % 4u];
+}
+
+// Fixed soft light used by the diagnostic views, independent of the SH coefficients so that
+// the shape stays readable even under flat ambient lighting.
+fn diagnostic_shade(n: vec3<f32>) -> f32 {
+    let l = normalize(vec3<f32>(-0.35, 0.45, 1.0));
+    return 0.45 + 0.55 * max(dot(n, l), 0.0);
+}
+
+// Turbo colour map, polynomial approximation by Anton Mikhailov (Google, Apache-2.0).
+fn turbo(x_in: f32) -> vec3<f32> {
+    let x = clamp(x_in, 0.0, 1.0);
+    let r4 = vec4<f32>(0.13572138, 4.61539260, -42.66032258, 132.13108234);
+    let g4 = vec4<f32>(0.09140261, 2.19418839, 4.84296658, -14.18503333);
+    let b4 = vec4<f32>(0.10667330, 12.64194608, -60.58204836, 110.36276771);
+    let r2 = vec2<f32>(-152.94239396, 59.28637943);
+    let g2 = vec2<f32>(4.27729857, 2.82956604);
+    let b2 = vec2<f32>(-89.90310912, 27.34824973);
+    let v4 = vec4<f32>(1.0, x, x * x, x * x * x);
+    let v2 = v4.zw * v4.z;
+    return clamp(
+        vec3<f32>(dot(v4, r4) + dot(v2, r2), dot(v4, g4) + dot(v2, g2), dot(v4, b4) + dot(v2, b2)),
+        vec3<f32>(0.0),
+        vec3<f32>(1.0),
+    );
+}
+
+@fragment
+fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
+    let n = normalize(in.normal_view);
+    // OBJ uv has its origin bottom-left; textures are stored top row first.
+    let tex_uv = vec2<f32>(in.uv.x, 1.0 - in.uv.y);
+    // Sampled unconditionally: implicit-derivative sampling must stay in uniform control flow.
+    let albedo = textureSample(albedo_tex, lin_sampler, tex_uv, in.layer).rgb;
+    let mask = textureSample(mask_tex, lin_sampler, tex_uv).r;
+    let mode = frame.mode.x;
+    let flags = frame.mode.y;
+    var rgb: vec3<f32>;
+    switch mode {
+        case MODE_ALBEDO: {
+            rgb = albedo;
+        }
+        case MODE_NORMALS: {
+            rgb = n * 0.5 + 0.5;
+        }
+        case MODE_WIREFRAME: {
+            rgb = vec3<f32>(0.82) * diagnostic_shade(n);
+        }
+        case MODE_MASK_HEATMAP: {
+            if (flags & FLAG_HAS_MASK) != 0u && in.layer == 0u {
+                rgb = turbo(mask) * diagnostic_shade(n);
+            } else {
+                rgb = vec3<f32>(0.6) * diagnostic_shade(n);
+            }
+        }
+        case MODE_VERTEX_HEATMAP: {
+            if (flags & FLAG_HAS_SCALARS) != 0u {
+                rgb = turbo(in.scalar / max(frame.params.x, 1e-20)) * diagnostic_shade(n);
+            } else {
+                rgb = vec3<f32>(0.6) * diagnostic_shade(n);
+            }
+        }
+        default: {
+            // MODE_SHADED and MODE_LANDMARKS (dots are a separate draw on top).
+            rgb = albedo * max(sh_irradiance(n), vec3<f32>(0.0));
+        }
+    }
+    return vec4<f32>(clamp(rgb, vec3<f32>(0.0), vec3<f32>(1.0)), frame.params.y);
+}
+
+// Depth pre-pass (only used when the face is blended over an overlay with opacity < 1):
+// writes nothing to colour, so the colour pass then shades only the front-most surface
+// and hidden layers of the mesh do not show through.
+@fragment
+fn fs_depth_only(in: MeshOut) -> @location(0) vec4<f32> {
+    return vec4<f32>(0.0);
+}
+
+// ---------------------------------------------------------------------------------------
+// Wireframe edges
+
+struct LineOut {
+    @builtin(position) clip: vec4<f32>,
+}
+
+@vertex
+fn vs_line(
+    @location(0) vertex: u32,
+    @location(1) layer: u32,
+    @location(2) uv: vec2<f32>,
+) -> LineOut {
+    let b = blend_vertex(vertex);
+    var view = frame.view_from_model * vec4<f32>(b.pos, 1.0);
+    // Pull the line slightly towards the eye (view-space origin) so it wins the depth test
+    // against its own triangles. Depth bias is not allowed for line topologies in WebGPU,
+    // and a relative offset works at any distance.
+    view = vec4<f32>(view.xyz * (1.0 - 1.5e-3), 1.0);
+    var out: LineOut;
+    out.clip = frame.clip_from_view * view;
+    return out;
+}
+
+@fragment
+fn fs_line() -> @location(0) vec4<f32> {
+    return vec4<f32>(0.12, 0.16, 0.26, 1.0);
+}
+
+// ---------------------------------------------------------------------------------------
+// Landmark dots: instanced screen-space quads centred on the blended landmark vertex.
+
+const DOT_RADIUS_PX: f32 = 3.0;
+
+struct DotOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) local_px: vec2<f32>,
+}
+
+@vertex
+fn vs_landmark(@builtin(vertex_index) corner: u32, @location(0) vertex: u32) -> DotOut {
+    var offsets = array<vec2<f32>, 6>(
+        vec2<f32>(-1.0, -1.0),
+        vec2<f32>(1.0, -1.0),
+        vec2<f32>(1.0, 1.0),
+        vec2<f32>(-1.0, -1.0),
+        vec2<f32>(1.0, 1.0),
+        vec2<f32>(-1.0, 1.0),
+    );
+    let o = offsets[corner];
+    let b = blend_vertex(vertex);
+    var clip = frame.clip_from_view * (frame.view_from_model * vec4<f32>(b.pos, 1.0));
+    // Quad half-size slightly larger than the dot so the disk is not cut by the quad edge.
+    let half_px = DOT_RADIUS_PX + 1.0;
+    clip = vec4<f32>(clip.xy + o * half_px * 2.0 / frame.params.zw * clip.w, clip.zw);
+    var out: DotOut;
+    out.clip = clip;
+    out.local_px = o * half_px;
+    return out;
+}
+
+@fragment
+fn fs_landmark(in: DotOut) -> @location(0) vec4<f32> {
+    let d = length(in.local_px);
+    if d > DOT_RADIUS_PX {
+        discard;
+    }
+    // Bright core with a dark rim so the dot reads on both light and dark albedo.
+    if d > DOT_RADIUS_PX - 0.9 {
+        return vec4<f32>(0.05, 0.05, 0.05, 1.0);
+    }
+    return vec4<f32>(0.15, 1.0, 0.3, 1.0);
+}
+
+// ---------------------------------------------------------------------------------------
+// Overlay background: one full-screen triangle.
+
+struct BgOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) uv: vec2<f32>,
+}
+
+@vertex
+fn vs_background(@builtin(vertex_index) i: u32) -> BgOut {
+    // uv (0,0) is the image's top-left; the triangle covers [0,2]^2 in uv.
+    let uv = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u));
+    var out: BgOut;
+    out.clip = vec4<f32>(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, 0.5, 1.0);
+    out.uv = uv;
+    return out;
+}
+
+@fragment
+fn fs_background(in: BgOut) -> @location(0) vec4<f32> {
+    return vec4<f32>(textureSampleLevel(overlay_tex, lin_sampler, in.uv, 0.0).rgb, 1.0);
+}

@@ -1,0 +1,393 @@
+//! Headless rendering tests (lavapipe here) on a synthetic mesh: a UV sphere with two
+//! blendshapes (0 bulges the top, 1 moves a patch on the front-right) and a two-layer
+//! checker albedo whose layer 0 has a yellow band at the north pole.
+//!
+//! Golden images live in `tests/goldens/` (256x256). They are compared with
+//! `golden::Tolerance::default()`: every channel within 3/255 on at least 99.5 % of the
+//! pixels, which absorbs driver rounding and a few anti-aliased edge pixels but fails on any
+//! visible change. Regenerate with `LIKENESS_UPDATE_GOLDENS=1 cargo test -p renderer` and
+//! look at the images before committing them.
+
+use glam::{Mat4, Vec3};
+use image::RgbaImage;
+use renderer::golden::{Tolerance, assert_matches_golden};
+use renderer::synthetic::{checker_albedo, uv_sphere};
+use renderer::{
+    Camera, FrameParams, MeshData, OffscreenRenderer, RenderError, TextureLayers, ViewMode,
+    sh_ambient,
+};
+use std::path::PathBuf;
+
+const SIZE: u32 = 256;
+
+fn sphere() -> MeshData {
+    uv_sphere(32, 48, 2)
+}
+
+fn camera(size: u32) -> Camera {
+    // Camera on the +z axis looking at the sphere (radius 1) at the origin.
+    let s = size as f32;
+    Camera::from_intrinsics(
+        0.98 * s,
+        s / 2.0,
+        s / 2.0,
+        size,
+        size,
+        0.1,
+        20.0,
+        Mat4::from_translation(Vec3::new(0.0, 0.0, -3.2)),
+    )
+}
+
+fn params(view: ViewMode) -> FrameParams {
+    FrameParams {
+        view,
+        ..FrameParams::new(camera(SIZE))
+    }
+}
+
+fn offscreen(mesh: &MeshData, albedo: &TextureLayers) -> OffscreenRenderer {
+    let r = OffscreenRenderer::new(mesh, albedo)
+        .expect("offscreen renderer (is mesa-vulkan-drivers installed?)");
+    eprintln!(
+        "adapter: {:?}, msaa x{}",
+        r.adapter_info().name,
+        r.face.sample_count()
+    );
+    r
+}
+
+fn golden(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/goldens")
+        .join(format!("{name}.png"))
+}
+
+/// Pixels whose RGB differs by more than `threshold` in some channel.
+fn changed_pixels(a: &RgbaImage, b: &RgbaImage, threshold: u8) -> usize {
+    a.pixels()
+        .zip(b.pixels())
+        .filter(|(p, q)| (0..3).any(|c| p.0[c].abs_diff(q.0[c]) > threshold))
+        .count()
+}
+
+fn pixel_at(img: &RgbaImage, cam: &Camera, p: Vec3) -> [u8; 4] {
+    let px = cam
+        .project_to_pixel(p, img.width(), img.height())
+        .expect("in front of camera");
+    img.get_pixel(px.x as u32, px.y as u32).0
+}
+
+#[test]
+fn every_view_mode_matches_its_golden() {
+    let mesh = sphere();
+    let mut r = offscreen(&mesh, &checker_albedo(128, 8));
+    r.face.set_weights(&r.queue, &[0.5, 1.0]).unwrap();
+    // Mask: radial ramp around the centre of layer 0's tile.
+    let (mw, mh) = (64u32, 64u32);
+    let mask: Vec<f32> = (0..mw * mh)
+        .map(|i| {
+            let (x, y) = (
+                (i % mw) as f32 / mw as f32 - 0.5,
+                (i / mw) as f32 / mh as f32 - 0.5,
+            );
+            (1.0 - 2.0 * (x * x + y * y).sqrt()).clamp(0.0, 1.0)
+        })
+        .collect();
+    r.face.set_uv_mask(&r.queue, Some((&mask, mw, mh))).unwrap();
+    // Vertex scalars: height, so the heatmap runs blue (bottom) to red (top).
+    let scalars: Vec<f32> = mesh.base_positions.iter().map(|p| p[1] + 1.0).collect();
+    r.face.set_vertex_scalars(&r.queue, Some(&scalars)).unwrap();
+    for view in ViewMode::ALL {
+        let mut p = params(view);
+        p.heatmap_max = 2.0;
+        let img = r.render_image(SIZE, SIZE, &p).unwrap();
+        let name = format!("{view:?}").to_lowercase();
+        assert_matches_golden(&golden(&name), &img, Tolerance::default());
+    }
+}
+
+#[test]
+fn image_is_upright_and_lit_from_upper_left() {
+    let mut r = offscreen(&sphere(), &checker_albedo(128, 8));
+    let cam = camera(SIZE);
+    let albedo = r
+        .render_image(SIZE, SIZE, &params(ViewMode::Albedo))
+        .unwrap();
+    // The yellow band of layer 0 (+x half) is at the tile's top, i.e. the north pole.
+    let yellow = |p: [u8; 4]| p[0] > 200 && p[1] > 180 && p[2] < 100;
+    // 35 degrees from the pole, 20 degrees to the +x side of the front meridian.
+    let north = Vec3::new(0.196, 0.819, 0.539).normalize();
+    let south = Vec3::new(0.196, -0.819, 0.539).normalize();
+    assert!(
+        yellow(pixel_at(&albedo, &cam, north)),
+        "{:?}",
+        pixel_at(&albedo, &cam, north)
+    );
+    assert!(!yellow(pixel_at(&albedo, &cam, south)));
+    // Model +y is up in the image.
+    let up = cam.project_to_pixel(Vec3::Y, SIZE, SIZE).unwrap();
+    assert!(up.y < SIZE as f32 / 2.0);
+
+    // Studio light on a white sphere: the upper-left front is brighter than the lower right.
+    let mut white = offscreen(&sphere(), &TextureLayers::solid(4, 4, 2, [255; 4]));
+    let shaded = white
+        .render_image(SIZE, SIZE, &params(ViewMode::Shaded))
+        .unwrap();
+    let lum = |p: [u8; 4]| p[0] as u32 + p[1] as u32 + p[2] as u32;
+    let upper_left = pixel_at(&shaded, &cam, Vec3::new(-0.5, 0.5, 0.7).normalize());
+    let lower_right = pixel_at(&shaded, &cam, Vec3::new(0.5, -0.5, 0.7).normalize());
+    assert!(
+        lum(upper_left) > lum(lower_right) + 60,
+        "{upper_left:?} vs {lower_right:?}"
+    );
+}
+
+#[test]
+fn blendshape_at_weight_one_changes_the_image() {
+    let mut r = offscreen(&sphere(), &checker_albedo(128, 8));
+    let p = params(ViewMode::Shaded);
+    let rest = r.render_image(SIZE, SIZE, &p).unwrap();
+    for shape in 0..2 {
+        let mut w = [0.0; 2];
+        w[shape] = 1.0;
+        r.face.set_weights(&r.queue, &w).unwrap();
+        let posed = r.render_image(SIZE, SIZE, &p).unwrap();
+        let changed = changed_pixels(&rest, &posed, 8);
+        assert!(
+            changed >= 800,
+            "shape {shape}: only {changed} pixels changed"
+        );
+    }
+}
+
+#[test]
+fn set_weights_changes_the_image_without_reuploading_the_mesh() {
+    let mut r = offscreen(&sphere(), &checker_albedo(128, 8));
+    let p = params(ViewMode::Normals);
+    let before = r.render_image(SIZE, SIZE, &p).unwrap();
+    r.face.set_weights(&r.queue, &[0.0, 0.7]).unwrap();
+    let after = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert!(changed_pixels(&before, &after, 8) >= 500);
+    // Back to zero weights gives back the rest image: the weights are state, the mesh is untouched.
+    r.face.set_weights(&r.queue, &[0.0, 0.0]).unwrap();
+    let again = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert_eq!(changed_pixels(&before, &again, 1), 0);
+}
+
+#[test]
+fn invalid_weights_are_errors() {
+    let mut r = offscreen(&sphere(), &checker_albedo(16, 4));
+    let nan = r.face.set_weights(&r.queue, &[0.2, f32::NAN]);
+    assert!(
+        matches!(nan, Err(RenderError::InvalidWeights(_))),
+        "{nan:?}"
+    );
+    let inf = r.face.set_weights(&r.queue, &[f32::INFINITY, 0.0]);
+    assert!(matches!(inf, Err(RenderError::InvalidWeights(_))));
+    let count = r.face.set_weights(&r.queue, &[0.2]);
+    assert!(count.unwrap_err().to_string().contains("2 blendshapes"));
+}
+
+#[test]
+fn inconsistent_mesh_data_is_an_error() {
+    let albedo = checker_albedo(16, 4);
+    let good = sphere();
+
+    let mut m = good.clone();
+    m.base_normals.pop();
+    let err = OffscreenRenderer::new(&m, &albedo).err().expect("error");
+    assert!(matches!(err, RenderError::InvalidMesh(_)));
+    assert!(err.to_string().contains("base_normals"), "{err}");
+
+    let mut m = good.clone();
+    m.normal_deltas.truncate(m.normal_deltas.len() - 3);
+    assert!(
+        OffscreenRenderer::new(&m, &albedo)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("normal_deltas")
+    );
+
+    let mut m = good.clone();
+    m.indices[7] = m.corners.len() as u32;
+    assert!(
+        OffscreenRenderer::new(&m, &albedo)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("indices[7]")
+    );
+
+    let mut m = good.clone();
+    m.base_positions[3][0] = f32::NAN;
+    assert!(
+        OffscreenRenderer::new(&m, &albedo)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("base_positions[3]")
+    );
+
+    // Albedo with fewer layers than the corners use.
+    let one_layer = TextureLayers::solid(4, 4, 1, [255; 4]);
+    let err = OffscreenRenderer::new(&good, &one_layer).err().unwrap();
+    assert!(matches!(err, RenderError::InvalidTexture(_)), "{err}");
+
+    // set_mesh_deltas with a different shape count.
+    let mut r = offscreen(&good, &albedo);
+    let other = uv_sphere(32, 48, 3);
+    assert!(matches!(
+        r.face.set_mesh_deltas(&r.queue, &other),
+        Err(RenderError::InvalidMesh(_))
+    ));
+    // ...and with the same topology it works and changes the image.
+    let before = r.render_image(64, 64, &params(ViewMode::Normals)).unwrap();
+    let mut bigger = good.clone();
+    bigger.base_positions.iter_mut().for_each(|p| p[0] *= 1.3);
+    r.face.set_mesh_deltas(&r.queue, &bigger).unwrap();
+    let after = r.render_image(64, 64, &params(ViewMode::Normals)).unwrap();
+    assert!(changed_pixels(&before, &after, 8) > 50);
+
+    // Wrong-sized side inputs are errors too, not panics.
+    assert!(
+        r.face
+            .set_vertex_scalars(&r.queue, Some(&[1.0, 2.0]))
+            .is_err()
+    );
+    assert!(
+        r.face
+            .set_uv_mask(&r.queue, Some((&[0.5; 10], 4, 4)))
+            .is_err()
+    );
+    assert!(r.render_image(0, 10, &params(ViewMode::Shaded)).is_err());
+}
+
+#[test]
+fn overlay_fills_the_background_and_the_face_is_blended_over_it() {
+    let mut r = offscreen(&sphere(), &checker_albedo(128, 8));
+    let overlay = RgbaImage::from_fn(SIZE, SIZE, |x, y| image::Rgba([x as u8, y as u8, 200, 255]));
+    let device = r.device.clone();
+    r.face
+        .set_overlay_image(&device, &r.queue, Some(&overlay), 0.5)
+        .unwrap();
+    let img = r
+        .render_image(SIZE, SIZE, &params(ViewMode::Albedo))
+        .unwrap();
+    // Far from the mesh (corners): exactly the background image.
+    for (x, y) in [(3, 3), (250, 5), (10, 240), (200, 250)] {
+        assert_eq!(
+            img.get_pixel(x, y),
+            overlay.get_pixel(x, y),
+            "pixel ({x}, {y})"
+        );
+    }
+    // On the face: halfway between the overlay and the albedo-only render.
+    r.face
+        .set_overlay_image(&device, &r.queue, None, 1.0)
+        .unwrap();
+    let face = r
+        .render_image(SIZE, SIZE, &params(ViewMode::Albedo))
+        .unwrap();
+    let (x, y) = (128, 128);
+    for c in 0..3 {
+        let expected =
+            (face.get_pixel(x, y).0[c] as f32 + overlay.get_pixel(x, y).0[c] as f32) / 2.0;
+        let got = img.get_pixel(x, y).0[c] as f32;
+        assert!(
+            (got - expected).abs() <= 2.0,
+            "channel {c}: {got} vs {expected}"
+        );
+    }
+    assert_matches_golden(&golden("overlay"), &img, Tolerance::default());
+}
+
+#[test]
+fn ambient_sh_on_constant_albedo_gives_that_colour() {
+    let colour = [200, 120, 60, 255];
+    let mut r = offscreen(&sphere(), &TextureLayers::solid(8, 8, 2, colour));
+    let mut p = params(ViewMode::Shaded);
+    p.sh_coefficients = sh_ambient();
+    r.face.set_weights(&r.queue, &[1.0, 1.0]).unwrap();
+    // Fully covered pixels are those that do not depend on the background colour (edge
+    // pixels are anti-aliased blends with it).
+    p.background = [0.0, 0.0, 0.0, 1.0];
+    let on_black = r.render_image(SIZE, SIZE, &p).unwrap();
+    p.background = [1.0, 1.0, 1.0, 1.0];
+    let on_white = r.render_image(SIZE, SIZE, &p).unwrap();
+    let mut covered = 0;
+    for (a, b) in on_black.pixels().zip(on_white.pixels()) {
+        if a == b {
+            covered += 1;
+            for c in 0..3 {
+                assert!(a.0[c].abs_diff(colour[c]) <= 2, "{:?} vs {colour:?}", a.0);
+            }
+        }
+    }
+    assert!(covered > 10_000, "only {covered} mesh pixels");
+}
+
+#[test]
+fn face_sized_mesh_fits_webgl2_default_limits() {
+    // The web build runs on WebGL2 with its default limits (2D textures <= 2048, 16 KiB
+    // uniform blocks). A face-sized mesh (27k vertices, 53 shapes) must fit them.
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter =
+        pollster::block_on(instance.request_adapter(&Default::default())).expect("adapter");
+    let limits = wgpu::Limits::downlevel_webgl2_defaults();
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        required_limits: limits.clone(),
+        ..Default::default()
+    }))
+    .expect("device");
+    let mesh = uv_sphere(164, 166, 53);
+    let format = wgpu::TextureFormat::Rgba8Unorm;
+    let mut face =
+        renderer::FaceRenderer::new(&device, &queue, format, &mesh, &checker_albedo(1024, 16))
+            .expect("fits");
+    face.set_weights(&queue, &vec![0.5; 53]).unwrap();
+    let target = device.create_texture(&wgpu::TextureDescriptor {
+        label: None,
+        size: wgpu::Extent3d {
+            width: 320,
+            height: 240,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+        view_formats: &[],
+    });
+    let view = target.create_view(&Default::default());
+    let mut encoder = device.create_command_encoder(&Default::default());
+    // Two renders into one encoder (e.g. two views in one UI frame) are allowed.
+    for mode in [ViewMode::Shaded, ViewMode::Landmarks] {
+        let mut p = FrameParams::new(camera(240));
+        p.view = mode;
+        face.render(&device, &queue, &mut encoder, &view, (320, 240), &p);
+    }
+    queue.submit([encoder.finish()]);
+    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+
+    // A mesh that needs more than 2048 rows is refused with a clear error, not a panic.
+    // 14282 vertices x (2 + 2 * 160) texels / 2048 = 2246 rows.
+    let mut huge = uv_sphere(120, 120, 0);
+    huge.blend_deltas = vec![[0.0; 3]; 160 * huge.vertex_count()];
+    huge.normal_deltas = huge.blend_deltas.clone();
+    let err = renderer::FaceRenderer::new(&device, &queue, format, &huge, &checker_albedo(16, 4))
+        .err()
+        .expect("too large");
+    assert!(matches!(err, RenderError::TextureTooLarge { .. }), "{err}");
+    assert!(err.to_string().contains("2048"), "{err}");
+}
+
+#[test]
+fn renderer_can_live_in_egui_callback_resources() {
+    // egui_wgpu::CallbackResources needs Send + Sync + 'static.
+    fn assert_send_sync<T: Send + Sync + 'static>() {}
+    assert_send_sync::<renderer::FaceRenderer>();
+}
