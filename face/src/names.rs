@@ -145,8 +145,11 @@ pub fn arkit_sources(arkit: usize) -> &'static [usize] {
         ARKIT_NAMES
             .iter()
             .map(|name| {
-                let ict = arkit_to_ict_name(name);
-                let single: Vec<usize> = ict_index(&ict).into_iter().collect();
+                // jawLeft, mouthRight, ... are spelled the same in both sets.
+                let single: Vec<usize> = ict_index(name)
+                    .or_else(|| ict_index(&arkit_to_ict_name(name)))
+                    .into_iter()
+                    .collect();
                 if !single.is_empty() {
                     return single;
                 }

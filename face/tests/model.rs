@@ -123,6 +123,7 @@ fn equation_2_with_corrections_matches_the_papers_formula() {
         })
         .collect();
     let w0 = w.neutral_weight();
+    let template_person = m.template_blendshapes();
     let mut checked_corrected = 0;
     for v in (0..t.vertex_count()).step_by(11) {
         let mut expected = w0 * t.neutral[v] + f(&corrections.identity_shape, v);
@@ -136,7 +137,7 @@ fn equation_2_with_corrections_matches_the_papers_formula() {
             shape[v],
             expected
         );
-        if (shape[v] - m.template_blendshapes().vertex(v, &w)).length() > 1e-3 {
+        if (shape[v] - template_person.vertex(v, &w)).length() > 1e-3 {
             checked_corrected += 1;
         }
     }

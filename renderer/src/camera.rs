@@ -1,4 +1,4 @@
-use glam::{Mat4, Vec4};
+use glam::Mat4;
 
 /// Model-to-clip transform split into the rigid part (used for shading normals, which are
 /// shaded in view space) and the projection.
@@ -31,20 +31,15 @@ impl Camera {
         far: f32,
         view_from_model: Mat4,
     ) -> Self {
-        let w = width.max(1) as f32;
-        let h = height.max(1) as f32;
-        // Derivation: ndc_x = 2u/w - 1 and ndc_y = 1 - 2v/h; multiply by clip.w = -z.
-        let clip_from_view = Mat4::from_cols(
-            Vec4::new(2.0 * focal_px / w, 0.0, 0.0, 0.0),
-            Vec4::new(0.0, 2.0 * focal_px / h, 0.0, 0.0),
-            Vec4::new(
-                (w - 2.0 * cx) / w,
-                (2.0 * cy - h) / h,
-                far / (near - far),
-                -1.0,
-            ),
-            Vec4::new(0.0, 0.0, near * far / (near - far), 0.0),
-        );
+        // One definition of the pixel camera for the whole project: the face crate's.
+        let intrinsics = face::camera::Intrinsics {
+            focal_px,
+            cx,
+            cy,
+            width: width.max(1),
+            height: height.max(1),
+        };
+        let clip_from_view = intrinsics.clip_from_view(near, far);
         Self {
             view_from_model,
             clip_from_view,

@@ -1,0 +1,105 @@
+//! Rendering studio views to PNG files without a window.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use face::BlendshapeWeights;
+use renderer::OffscreenRenderer;
+
+use crate::scene::{Orbit, Scene, StudioView, frame_params};
+
+/// A headless renderer for the scene, on whatever adapter wgpu finds (lavapipe here).
+pub fn offscreen(scene: &Scene) -> Result<OffscreenRenderer> {
+    OffscreenRenderer::new(&scene.mesh, &scene.textures).context(
+        "no GPU adapter for headless rendering (on Debian install mesa-vulkan-drivers for lavapipe)",
+    )
+}
+
+/// Renders one view with the given weights and orbit.
+pub fn render_view(
+    scene: &Scene,
+    renderer: &mut OffscreenRenderer,
+    view: StudioView,
+    weights: &BlendshapeWeights,
+    orbit: &Orbit,
+    size: (u32, u32),
+) -> Result<image::RgbaImage> {
+    renderer.face.set_weights(&renderer.queue, &weights.0)?;
+    let mask = match view {
+        StudioView::Mask(i) => Some(scene.mask(i)),
+        _ => None,
+    };
+    renderer.face.set_uv_mask(&renderer.queue, mask)?;
+    let params = frame_params(view, orbit, size.0, size.1);
+    Ok(renderer.render_image(size.0, size.1, &params)?)
+}
+
+/// Checks that the folder of `path` exists, before any expensive work is done for it.
+pub fn ensure_output_folder(path: &Path) -> Result<&Path> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        anyhow::bail!(
+            "cannot write {}: folder {} does not exist",
+            path.display(),
+            dir.display()
+        );
+    }
+    Ok(dir)
+}
+
+/// Writes a PNG atomically (a temporary file beside it, then a rename), so a failed write
+/// never leaves a truncated image under the requested name.
+pub fn save_png(image: &image::RgbaImage, path: &Path) -> Result<()> {
+    let dir = ensure_output_folder(path)?;
+    let file_name = path
+        .file_name()
+        .with_context(|| format!("cannot write {}: not a file path", path.display()))?;
+    let tmp: PathBuf = dir.join(format!(".{}.tmp", file_name.to_string_lossy()));
+    image
+        .save_with_format(&tmp, image::ImageFormat::Png)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+/// The demo's views as files: the studio's 3D view in each mode and a few expressions.
+pub fn write_demo_views(scene: &Scene, out_dir: &Path, size: (u32, u32)) -> Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(out_dir)
+        .with_context(|| format!("cannot create {}", out_dir.display()))?;
+    let mut renderer = offscreen(scene)?;
+    let neutral = BlendshapeWeights::default();
+    let (expression, _) =
+        crate::scene::parse_weights("jawOpen=0.6,mouthSmile_L=0.8,mouthSmile_R=0.8")?;
+    let jaw = face::names::ict_index("jawOpen").unwrap_or(0);
+    let front = Orbit::default();
+    let three_quarter = Orbit {
+        yaw_deg: 35.0,
+        pitch_deg: -8.0,
+        ..Orbit::default()
+    };
+    let shots: [(&str, StudioView, &BlendshapeWeights, &Orbit); 7] = [
+        ("shaded_neutral", StudioView::Shaded, &neutral, &front),
+        ("shaded_expression", StudioView::Shaded, &expression, &front),
+        (
+            "shaded_three_quarter",
+            StudioView::Shaded,
+            &expression,
+            &three_quarter,
+        ),
+        ("albedo", StudioView::Albedo, &neutral, &front),
+        ("wireframe", StudioView::Wireframe, &neutral, &three_quarter),
+        ("landmarks", StudioView::Landmarks, &neutral, &front),
+        ("mask_jawOpen", StudioView::Mask(jaw), &neutral, &front),
+    ];
+    let mut written = Vec::new();
+    for (name, view, weights, orbit) in shots {
+        let image = render_view(scene, &mut renderer, view, weights, orbit, size)?;
+        let path = out_dir.join(format!("{name}.png"));
+        save_png(&image, &path)?;
+        written.push(path);
+    }
+    Ok(written)
+}

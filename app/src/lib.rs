@@ -1,0 +1,10 @@
+//! # likeness: the studio and command-line tool
+//!
+//! Wires the crates together: loads the face model (`face`), draws it (`renderer`) and
+//! shows it in an egui window or writes the same views to files. It owns the user-facing
+//! behaviour (flags, messages, the scripted demo) and none of the model's mathematics,
+//! which live in `face`.
+
+pub mod headless;
+pub mod scene;
+pub mod studio;

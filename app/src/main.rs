@@ -1,0 +1,166 @@
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use likeness::headless::{
+    ensure_output_folder, offscreen, render_view, save_png, write_demo_views,
+};
+use likeness::scene::{Orbit, Scene, StudioView, parse_weights};
+use likeness::studio::StudioApp;
+
+/// Likeness: a personalized face model you can see, measure and export.
+#[derive(Parser)]
+#[command(version, about)]
+struct Cli {
+    /// The face template: ict_face_model.safetensors, or the upstream ICT FaceKit
+    /// FaceXModel folder. Default: $LIKENESS_FACEMODEL, else
+    /// ../shared/facemodel/ict_face_model.safetensors beside the repository.
+    #[arg(long, global = true, value_name = "PATH")]
+    facemodel: Option<PathBuf>,
+
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Open the studio on its built-in demo (the default). Without a display, writes the
+    /// demo's views to --out instead.
+    Studio {
+        /// Where the views go when no display is available.
+        #[arg(long, default_value = "likeness-demo")]
+        out: PathBuf,
+    },
+    /// Write the demo's views to PNG files without opening a window.
+    Demo {
+        /// Kept for symmetry with the studio; the demo command never opens a window.
+        #[arg(long)]
+        headless: bool,
+        #[arg(long, default_value = "likeness-demo")]
+        out: PathBuf,
+    },
+    /// Render one view of the face to a PNG file without a window.
+    Screenshot {
+        #[arg(long)]
+        out: PathBuf,
+        /// Blendshape weights, e.g. jawOpen=0.8,eyeBlinkLeft=1 (ICT or ARKit names).
+        #[arg(long, default_value = "")]
+        weights: String,
+        /// shaded, albedo, normals, wireframe, landmarks or mask:NAME.
+        #[arg(long, default_value = "shaded")]
+        view: String,
+        /// Image size as WIDTHxHEIGHT.
+        #[arg(long, default_value = "800x800")]
+        size: String,
+        /// Head yaw in degrees (positive turns the face to its left).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        yaw: f32,
+        /// Head pitch in degrees.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        pitch: f32,
+    },
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32)> {
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .with_context(|| format!("size `{text}` is not WIDTHxHEIGHT"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .with_context(|| format!("width in `{text}` is not a number"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .with_context(|| format!("height in `{text}` is not a number"))?;
+    if !(16..=8192).contains(&w) || !(16..=8192).contains(&h) {
+        bail!("size {w}x{h} is outside 16..8192 pixels per side");
+    }
+    Ok((w, h))
+}
+
+fn has_display() -> bool {
+    ["DISPLAY", "WAYLAND_DISPLAY"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()))
+}
+
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+                "likeness=info,face=info,renderer=info,wgpu=error,naga=error".into()
+            }),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let command = cli.command.unwrap_or(Command::Studio {
+        out: "likeness-demo".into(),
+    });
+    let scene = Scene::load(cli.facemodel.as_deref())?;
+    match command {
+        Command::Studio { out } if !has_display() => {
+            eprintln!(
+                "No display found: writing the studio's demo views to {} instead.",
+                out.display()
+            );
+            report_written(&write_demo_views(&scene, &out, (800, 800))?);
+        }
+        Command::Studio { .. } => run_studio(scene)?,
+        Command::Demo { out, .. } => report_written(&write_demo_views(&scene, &out, (800, 800))?),
+        Command::Screenshot {
+            out,
+            weights,
+            view,
+            size,
+            yaw,
+            pitch,
+        } => {
+            ensure_output_folder(&out)?;
+            let (weights, clamped) = parse_weights(&weights)?;
+            for message in clamped {
+                eprintln!("warning: {message}");
+            }
+            let view = StudioView::parse(&view)?;
+            let size = parse_size(&size)?;
+            if !yaw.is_finite() || !pitch.is_finite() {
+                bail!("yaw and pitch must be numbers");
+            }
+            let orbit = Orbit {
+                yaw_deg: yaw,
+                pitch_deg: pitch,
+                ..Orbit::default()
+            };
+            let mut renderer = offscreen(&scene)?;
+            let image = render_view(&scene, &mut renderer, view, &weights, &orbit, size)?;
+            save_png(&image, &out)?;
+            println!("wrote {}", out.display());
+        }
+    }
+    Ok(())
+}
+
+fn report_written(paths: &[PathBuf]) {
+    for p in paths {
+        println!("wrote {}", p.display());
+    }
+}
+
+fn run_studio(scene: Scene) -> Result<()> {
+    let scene = Arc::new(scene);
+    let options = eframe::NativeOptions {
+        renderer: eframe::Renderer::Wgpu,
+        viewport: egui::ViewportBuilder::default()
+            .with_title("Likeness studio")
+            .with_inner_size([1280.0, 800.0]),
+        ..Default::default()
+    };
+    eframe::run_native(
+        "Likeness studio",
+        options,
+        Box::new(move |cc| Ok(Box::new(StudioApp::new(cc, scene)))),
+    )
+    .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))
+}

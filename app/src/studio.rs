@@ -1,0 +1,287 @@
+//! The studio window: a 3D view of the face with an orbit camera, the 53 blendshape sliders
+//! (searchable), a view-mode switch and the frame time.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use face::{ICT_NAMES, NUM_BLENDSHAPES};
+use renderer::FaceRenderer;
+
+use crate::scene::{Orbit, Scene, StudioView, demo_weights, frame_params};
+
+/// The studio's state, separate from GPU resources so tests can inspect it.
+pub struct StudioState {
+    pub weights: [f32; NUM_BLENDSHAPES],
+    pub filter: String,
+    pub view: StudioView,
+    /// The blendshape whose mask the mask view shows.
+    pub selected: usize,
+    pub orbit: Orbit,
+    /// Drive the weights from the scripted expression loop.
+    pub playing_demo: bool,
+    pub demo_time_secs: f64,
+    /// Last frame's CPU time for building and submitting the 3D view, in milliseconds.
+    pub frame_time_ms: f32,
+    pub error: Option<String>,
+}
+
+impl Default for StudioState {
+    fn default() -> Self {
+        Self {
+            weights: [0.0; NUM_BLENDSHAPES],
+            filter: String::new(),
+            view: StudioView::Shaded,
+            selected: face::names::ict_index("jawOpen").unwrap_or(0),
+            orbit: Orbit::default(),
+            playing_demo: true,
+            demo_time_secs: 0.0,
+            frame_time_ms: 0.0,
+            error: None,
+        }
+    }
+}
+
+/// GPU side of the 3D view: the face renderer and the texture egui shows.
+struct Viewport {
+    face: FaceRenderer,
+    target: Option<(wgpu::Texture, egui::TextureId, [u32; 2])>,
+}
+
+pub struct StudioApp {
+    pub state: StudioState,
+    scene: Arc<Scene>,
+    viewport: Option<Viewport>,
+}
+
+impl StudioApp {
+    pub fn new(cc: &eframe::CreationContext<'_>, scene: Arc<Scene>) -> Self {
+        let mut app = Self {
+            state: StudioState::default(),
+            scene,
+            viewport: None,
+        };
+        match cc.wgpu_render_state.as_ref() {
+            Some(rs) => match FaceRenderer::new(
+                &rs.device,
+                &rs.queue,
+                wgpu::TextureFormat::Rgba8Unorm,
+                &app.scene.mesh,
+                &app.scene.textures,
+            ) {
+                Ok(face) => app.viewport = Some(Viewport { face, target: None }),
+                Err(e) => app.state.error = Some(format!("3D view unavailable: {e}")),
+            },
+            None => {
+                app.state.error = Some("3D view unavailable: eframe is not running on wgpu".into())
+            }
+        }
+        app
+    }
+
+    /// Sliders for the 53 blendshapes, filtered by the search text.
+    fn blendshape_list_ui(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            let label = ui.label("Search");
+            ui.text_edit_singleline(&mut self.state.filter)
+                .labelled_by(label.id);
+        });
+        ui.horizontal(|ui| {
+            ui.checkbox(&mut self.state.playing_demo, "Play expression loop");
+            if ui.button("Reset").clicked() {
+                self.state.weights = [0.0; NUM_BLENDSHAPES];
+                self.state.playing_demo = false;
+            }
+        });
+        ui.separator();
+        let filter = self.state.filter.to_ascii_lowercase();
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            for (i, name) in ICT_NAMES.iter().enumerate() {
+                if !filter.is_empty() && !name.to_ascii_lowercase().contains(&filter) {
+                    continue;
+                }
+                ui.horizontal(|ui| {
+                    let selected = self.state.selected == i;
+                    // "A" for the paper's attention mask A_i; only default-font glyphs are safe here.
+                    let pick = ui.selectable_label(selected, "A");
+                    if pick
+                        .on_hover_text(format!("Show the attention mask of {name}"))
+                        .clicked()
+                    {
+                        self.state.selected = i;
+                        if matches!(self.state.view, StudioView::Mask(_)) {
+                            self.state.view = StudioView::Mask(i);
+                        }
+                    }
+                    let response = ui
+                        .add(egui::Slider::new(&mut self.state.weights[i], 0.0..=1.0).text(*name));
+                    if response.changed() {
+                        // A hand-set weight stops the scripted loop so it is not overwritten.
+                        self.state.playing_demo = false;
+                        self.state.selected = i;
+                    }
+                });
+            }
+        });
+    }
+
+    fn toolbar_ui(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            ui.label("View");
+            let selected = self.state.selected;
+            for view in [
+                StudioView::Shaded,
+                StudioView::Albedo,
+                StudioView::Normals,
+                StudioView::Wireframe,
+                StudioView::Landmarks,
+                StudioView::Mask(selected),
+            ] {
+                let label = if matches!(view, StudioView::Mask(_)) {
+                    "Mask".to_owned()
+                } else {
+                    view.label()
+                };
+                if ui
+                    .selectable_label(self.state.view == view, label)
+                    .clicked()
+                {
+                    self.state.view = view;
+                }
+            }
+            ui.separator();
+            ui.label(format!("frame {:.1} ms", self.state.frame_time_ms));
+            if let StudioView::Mask(i) = self.state.view {
+                ui.separator();
+                ui.label(format!("mask A of {}", ICT_NAMES[i]));
+            }
+        });
+    }
+
+    fn viewport_ui(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
+        let available = ui.available_size();
+        let size = [available.x.max(16.0) as u32, available.y.max(16.0) as u32];
+        let (Some(viewport), Some(rs)) = (self.viewport.as_mut(), frame.wgpu_render_state()) else {
+            ui.centered_and_justified(|ui| {
+                ui.label(
+                    self.state
+                        .error
+                        .clone()
+                        .unwrap_or_else(|| "no 3D view".into()),
+                );
+            });
+            return;
+        };
+        let started = Instant::now();
+        if let Err(e) = viewport.face.set_weights(&rs.queue, &self.state.weights) {
+            self.state.error = Some(e.to_string());
+        }
+        if let StudioView::Mask(i) = self.state.view {
+            if let Err(e) = viewport
+                .face
+                .set_uv_mask(&rs.queue, Some(self.scene.mask(i)))
+            {
+                self.state.error = Some(e.to_string());
+            }
+        }
+        // (Re)create the target texture when the view size changes.
+        if viewport.target.as_ref().is_none_or(|t| t.2 != size) {
+            let texture = rs.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("studio 3D view"),
+                size: wgpu::Extent3d {
+                    width: size[0],
+                    height: size[1],
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::Rgba8Unorm,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            });
+            let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+            let mut egui_renderer = rs.renderer.write();
+            let id = match viewport.target.take() {
+                Some((_, id, _)) => {
+                    egui_renderer.update_egui_texture_from_wgpu_texture(
+                        &rs.device,
+                        &view,
+                        wgpu::FilterMode::Linear,
+                        id,
+                    );
+                    id
+                }
+                None => egui_renderer.register_native_texture(
+                    &rs.device,
+                    &view,
+                    wgpu::FilterMode::Linear,
+                ),
+            };
+            viewport.target = Some((texture, id, size));
+        }
+        let Some((texture, id, _)) = viewport.target.as_ref() else {
+            return;
+        };
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        let params = frame_params(self.state.view, &self.state.orbit, size[0], size[1]);
+        let mut encoder = rs
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("studio 3D view"),
+            });
+        viewport.face.render(
+            &rs.device,
+            &rs.queue,
+            &mut encoder,
+            &view,
+            (size[0], size[1]),
+            &params,
+        );
+        rs.queue.submit([encoder.finish()]);
+        self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
+
+        let response = ui.add(
+            egui::Image::new((*id, egui::vec2(size[0] as f32, size[1] as f32)))
+                .sense(egui::Sense::drag()),
+        );
+        if response.dragged() {
+            let delta = response.drag_delta();
+            self.state.orbit.yaw_deg =
+                (self.state.orbit.yaw_deg + delta.x * 0.4).clamp(-90.0, 90.0);
+            self.state.orbit.pitch_deg =
+                (self.state.orbit.pitch_deg + delta.y * 0.4).clamp(-60.0, 60.0);
+        }
+        if response.hovered() {
+            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+            self.state.orbit.distance_cm =
+                (self.state.orbit.distance_cm - scroll * 0.1).clamp(30.0, 200.0);
+        }
+    }
+}
+
+impl eframe::App for StudioApp {
+    fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+        if self.state.playing_demo {
+            let dt = ui.input(|i| i.stable_dt) as f64;
+            self.state.demo_time_secs += dt.min(0.1);
+            self.state.weights = demo_weights(self.state.demo_time_secs);
+            ui.ctx().request_repaint();
+        }
+        egui::Panel::top("toolbar").show(ui, |ui| self.toolbar_ui(ui));
+        egui::Panel::left("blendshapes")
+            .default_size(330.0)
+            .show(ui, |ui| self.blendshape_list_ui(ui));
+        if let Some(error) = self.state.error.clone() {
+            egui::Panel::bottom("errors").show(ui, |ui| {
+                ui.horizontal(|ui| {
+                    ui.colored_label(egui::Color32::LIGHT_RED, &error);
+                    if ui.button("Dismiss").clicked() {
+                        self.state.error = None;
+                    }
+                });
+            });
+        }
+        egui::CentralPanel::default().show(ui, |ui| self.viewport_ui(ui, frame));
+    }
+}

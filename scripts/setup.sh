@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Installs what building, running and testing Likeness needs on Debian 12 (run as root, or
+# with sudo available). Idempotent: installs only what is missing.
+set -euo pipefail
+
+need=()
+# Mesa's lavapipe: the Vulkan driver headless rendering and the screenshot tests run on.
+for pkg in mesa-vulkan-drivers libvulkan1 \
+           libx11-6 libxkbcommon0 libxkbcommon-x11-0 libxcursor1 libxrandr2 libxi6 libwayland-client0 libegl1; do
+  dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || need+=("$pkg")
+done
+if [ "${#need[@]}" -gt 0 ]; then
+  echo "setup: installing ${need[*]}"
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null
+fi
+
+if command -v rustup >/dev/null 2>&1; then
+  rustup component list --installed | grep -q '^clippy' || rustup component add clippy
+  rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
+  rustup target list --installed | grep -q '^wasm32-unknown-unknown$' || rustup target add wasm32-unknown-unknown
+fi
+
+# wgpu warns without a private runtime folder on headless machines.
+if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
+  mkdir -p -m 700 /tmp/likeness-xdg
+fi

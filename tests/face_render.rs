@@ -1,0 +1,156 @@
+//! The template face through the GPU renderer on lavapipe, against golden PNGs.
+//!
+//! Tolerance: every channel within 3/255 for at least 99.5 % of the pixels
+//! (`Tolerance::default()`): it absorbs rounding and a few anti-aliased edge pixels, while
+//! any visible change of shape, shading or colour fails. Regenerate with
+//! `LIKENESS_UPDATE_GOLDENS=1 cargo test -p likeness-tests --test face_render`.
+
+use std::path::PathBuf;
+use std::sync::{Mutex, OnceLock};
+
+use face::BlendshapeWeights;
+use likeness::headless::{offscreen, render_view};
+use likeness::scene::{Orbit, Scene, StudioView, frame_params, parse_weights};
+use renderer::OffscreenRenderer;
+use renderer::golden::{Tolerance, assert_matches_golden};
+
+const SIZE: (u32, u32) = (256, 256);
+
+struct Fixture {
+    scene: Scene,
+    renderer: Mutex<OffscreenRenderer>,
+}
+
+fn fixture() -> &'static Fixture {
+    static FIXTURE: OnceLock<Fixture> = OnceLock::new();
+    FIXTURE.get_or_init(|| {
+        let scene =
+            Scene::load(None).unwrap_or_else(|e| panic!("these tests need the template: {e}"));
+        let renderer = offscreen(&scene).unwrap_or_else(|e| panic!("no adapter: {e:#}"));
+        Fixture {
+            scene,
+            renderer: Mutex::new(renderer),
+        }
+    })
+}
+
+fn golden(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("goldens")
+        .join(format!("{name}.png"))
+}
+
+fn render(view: StudioView, weights: &str, orbit: Orbit) -> image::RgbaImage {
+    let f = fixture();
+    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
+    let renderer: &mut OffscreenRenderer = &mut guard;
+    renderer
+        .face
+        .set_overlay_image(&renderer.device, &renderer.queue, None, 1.0)
+        .expect("clear overlay");
+    let (weights, _) = parse_weights(weights).expect("weights");
+    render_view(&f.scene, renderer, view, &weights, &orbit, SIZE).expect("render")
+}
+
+fn changed_pixels(a: &image::RgbaImage, b: &image::RgbaImage) -> usize {
+    a.pixels()
+        .zip(b.pixels())
+        .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 10))
+        .count()
+}
+
+#[test]
+fn neutral_front() {
+    let image = render(StudioView::Shaded, "", Orbit::default());
+    assert_matches_golden(&golden("neutral_front"), &image, Tolerance::default());
+}
+
+#[test]
+fn jaw_open_and_smile_differs_from_neutral() {
+    let neutral = render(StudioView::Shaded, "", Orbit::default());
+    let expression = render(
+        StudioView::Shaded,
+        "jawOpen=0.8,mouthSmileLeft=1,mouthSmileRight=1",
+        Orbit::default(),
+    );
+    assert_matches_golden(&golden("jaw_open_smile"), &expression, Tolerance::default());
+    // The mouth region is a few thousand pixels at this size; the jaw and lips must move.
+    let changed = changed_pixels(&neutral, &expression);
+    assert!(
+        changed > 800,
+        "jawOpen + smile changed only {changed} pixels"
+    );
+}
+
+#[test]
+fn jaw_open_mask_heatmap() {
+    let jaw = face::names::ict_index("jawOpen").expect("name");
+    let image = render(StudioView::Mask(jaw), "", Orbit::default());
+    assert_matches_golden(&golden("mask_jaw_open"), &image, Tolerance::default());
+    // The heatmap is hot on the chin and cold on the forehead.
+    let chin = image.get_pixel(128, 185).0;
+    let forehead = image.get_pixel(128, 70).0;
+    assert!(
+        chin != forehead,
+        "mask heatmap shows no difference between chin and forehead"
+    );
+}
+
+#[test]
+fn three_quarter_view() {
+    let orbit = Orbit {
+        yaw_deg: 35.0,
+        pitch_deg: -8.0,
+        ..Orbit::default()
+    };
+    let image = render(StudioView::Shaded, "", orbit);
+    assert_matches_golden(&golden("three_quarter"), &image, Tolerance::default());
+    let front = render(StudioView::Shaded, "", Orbit::default());
+    assert!(changed_pixels(&front, &image) > 3000);
+}
+
+#[test]
+fn overlay_on_an_image() {
+    // A procedural background (no third-party pixels in the goldens).
+    let background = image::RgbaImage::from_fn(SIZE.0, SIZE.1, |x, y| {
+        let checker = ((x / 16) + (y / 16)) % 2 == 0;
+        let v = if checker { 200 } else { 90 };
+        image::Rgba([v, (x * 255 / SIZE.0) as u8, (y * 255 / SIZE.1) as u8, 255])
+    });
+    let f = fixture();
+    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
+    let renderer: &mut OffscreenRenderer = &mut guard;
+    renderer
+        .face
+        .set_overlay_image(&renderer.device, &renderer.queue, Some(&background), 0.7)
+        .expect("overlay");
+    renderer
+        .face
+        .set_weights(&renderer.queue, &BlendshapeWeights::default().0)
+        .expect("weights");
+    renderer
+        .face
+        .set_uv_mask(&renderer.queue, None)
+        .expect("mask");
+    let params = frame_params(StudioView::Shaded, &Orbit::default(), SIZE.0, SIZE.1);
+    let image = renderer
+        .render_image(SIZE.0, SIZE.1, &params)
+        .expect("render");
+    renderer
+        .face
+        .set_overlay_image(&renderer.device, &renderer.queue, None, 1.0)
+        .expect("clear overlay");
+    drop(guard);
+    assert_matches_golden(&golden("overlay"), &image, Tolerance::default());
+    // A corner far from the face shows the background image unchanged.
+    for (x, y) in [(2, 2), (SIZE.0 - 3, 2)] {
+        let got = image.get_pixel(x, y).0;
+        let want = background.get_pixel(x, y).0;
+        assert!(
+            got.iter()
+                .zip(want.iter())
+                .all(|(a, b)| a.abs_diff(*b) <= 2),
+            "{got:?} vs {want:?}"
+        );
+    }
+}
