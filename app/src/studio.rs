@@ -5,7 +5,10 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use face::{ICT_NAMES, NUM_BLENDSHAPES};
-use renderer::FaceRenderer;
+use renderer::{FaceRenderer, RenderOptions};
+
+/// Colour format of the 3D view's texture (display-encoded, as the renderer expects).
+const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
 use crate::scene::{Orbit, Scene, StudioView, demo_weights, frame_params};
 
@@ -61,10 +64,16 @@ impl StudioApp {
             viewport: None,
         };
         match cc.wgpu_render_state.as_ref() {
-            Some(rs) => match FaceRenderer::new(
+            Some(rs) => match FaceRenderer::with_options(
                 &rs.device,
                 &rs.queue,
-                wgpu::TextureFormat::Rgba8Unorm,
+                VIEW_FORMAT,
+                // No MSAA in the interactive view: on a software rasteriser 4x costs about
+                // half the frame (renderer bench); screenshots keep 4x.
+                RenderOptions {
+                    sample_count: 1,
+                    ..RenderOptions::for_adapter(&rs.adapter, VIEW_FORMAT)
+                },
                 &app.scene.mesh,
                 &app.scene.textures,
             ) {
@@ -175,13 +184,12 @@ impl StudioApp {
         if let Err(e) = viewport.face.set_weights(&rs.queue, &self.state.weights) {
             self.state.error = Some(e.to_string());
         }
-        if let StudioView::Mask(i) = self.state.view {
-            if let Err(e) = viewport
+        if let StudioView::Mask(i) = self.state.view
+            && let Err(e) = viewport
                 .face
                 .set_uv_mask(&rs.queue, Some(self.scene.mask(i)))
-            {
-                self.state.error = Some(e.to_string());
-            }
+        {
+            self.state.error = Some(e.to_string());
         }
         // (Re)create the target texture when the view size changes.
         if viewport.target.as_ref().is_none_or(|t| t.2 != size) {
@@ -195,7 +203,7 @@ impl StudioApp {
                 mip_level_count: 1,
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::Rgba8Unorm,
+                format: VIEW_FORMAT,
                 usage: wgpu::TextureUsages::RENDER_ATTACHMENT
                     | wgpu::TextureUsages::TEXTURE_BINDING,
                 view_formats: &[],

@@ -129,7 +129,7 @@ fn the_tiny_template_itself_loads() {
 #[test]
 fn a_missing_file_names_the_path_and_where_to_get_the_model() {
     let path = Path::new("/nonexistent/likeness/ict_face_model.safetensors");
-    let err = Template::load(path).err().expect("must fail");
+    let err = Template::load(path).expect_err("must fail");
     assert!(matches!(err, FaceError::TemplateNotFound { .. }), "{err}");
     let msg = err.to_string();
     assert!(msg.contains("/nonexistent/likeness"), "{msg}");
@@ -139,7 +139,7 @@ fn a_missing_file_names_the_path_and_where_to_get_the_model() {
 #[test]
 fn a_folder_without_a_model_is_not_found() {
     let dir = temp_dir("empty-folder");
-    let err = Template::load(&dir).err().expect("must fail");
+    let err = Template::load(&dir).expect_err("must fail");
     assert!(
         err.to_string().contains(&dir.display().to_string()),
         "{err}"

@@ -2,8 +2,19 @@
 //
 // WebGL2-compatible on purpose: no storage buffers, no compute. All per-vertex geometry
 // lives in one Rgba32Float data texture read with textureLoad by vertex index, and the
-// active blendshape weights arrive as a compact (index, weight) list in a uniform buffer,
-// so the vertex shader only loops over the shapes that are actually switched on.
+// active blendshape weights arrive as a compact (index, weight) list in a uniform buffer.
+//
+// Two ways to apply the weights (BlendPath on the Rust side):
+// - pre-pass (default): fs_blend renders the blended position and normal of every mesh
+//   vertex into an Rgba32Float target (blended_tex) once per weight change, and the mesh
+//   vertex shaders just load them. Blending costs O(V K) per change instead of
+//   O(corners K) per mesh-drawing pass per frame.
+// - per-vertex (PER_VERTEX_BLEND = true): every vertex shader invocation loops over the
+//   active shapes itself. Fallback for WebGL2 without EXT_color_buffer_float, where
+//   Rgba32Float cannot be rendered to.
+
+// Set per pipeline (see create_pipelines); an override so the unused path compiles away.
+override PER_VERTEX_BLEND: bool = false;
 
 // Must match MAX_BLENDSHAPES / 2 on the Rust side: two (index, weight) pairs per vec4.
 const WEIGHT_VEC4S: u32 = 128u;
@@ -30,7 +41,8 @@ struct Frame {
     mode: vec4<u32>,
     // x: heatmap max, y: face opacity, z: viewport width px, w: viewport height px
     params: vec4<f32>,
-    // x: blendshape count K, y: scalar texture width
+    // x: blendshape count K, y: scalar texture width (= data texture width),
+    // z: log2 of the data texture width
     counts: vec4<u32>,
 }
 
@@ -48,10 +60,20 @@ struct Weights {
 @group(0) @binding(5) var mask_tex: texture_2d<f32>;
 @group(0) @binding(6) var overlay_tex: texture_2d<f32>;
 @group(0) @binding(7) var lin_sampler: sampler;
+// Output of fs_blend: texel v is the blended position of vertex v, texel V + v its unit
+// normal (same width as data_tex). A 1x1 dummy on the per-vertex path.
+@group(0) @binding(8) var blended_tex: texture_2d<f32>;
+
+// Texel coordinates of linear index i in the data, blended and scalar textures, which share
+// one power-of-two width. Shift and mask, not % and /: software rasterisers (lavapipe) run
+// shaders as SIMD, which has no vector integer division, and this is in every inner loop.
+fn texel_coord(i: u32) -> vec2<i32> {
+    let shift = frame.counts.z;
+    return vec2<i32>(i32(i & ((1u << shift) - 1u)), i32(i >> shift));
+}
 
 fn data_texel(i: u32) -> vec4<f32> {
-    let w = frame.mode.z;
-    return textureLoad(data_tex, vec2<i32>(i32(i % w), i32(i / w)), 0);
+    return textureLoad(data_tex, texel_coord(i), 0);
 }
 
 struct Blended {
@@ -62,23 +84,46 @@ struct Blended {
 // Data texture layout (texel index): [0, V) base positions, [V, 2V) base normals,
 // [(2 + k) V + v] position delta of shape k, [(2 + K + k) V + v] normal delta of shape k.
 // Shape-major so that neighbouring vertices read neighbouring texels in every iteration.
-fn blend_vertex(v: u32) -> Blended {
+//
+// Sum of the base texel `base` and the active shapes' deltas at `delta0 + s V` (shape s).
+// The single definition of the blend used by both paths, so they round identically.
+fn blend_texels(base: u32, delta0: u32) -> vec3<f32> {
     let nv = frame.mode.w;
-    let k_total = frame.counts.x;
-    var p = data_texel(v).xyz;
-    var n = data_texel(nv + v).xyz;
+    var acc = data_texel(base).xyz;
     let count = weights.count.x;
     for (var i = 0u; i < count; i++) {
         let pair = weights.pairs[i / 2u];
         let iw = select(pair.xy, pair.zw, (i & 1u) == 1u);
         let s = u32(iw.x);
-        p += iw.y * data_texel((2u + s) * nv + v).xyz;
-        n += iw.y * data_texel((2u + k_total + s) * nv + v).xyz;
+        acc += iw.y * data_texel(delta0 + s * nv).xyz;
     }
-    // Blended normals are renormalised; a degenerate sum falls back to "towards camera".
+    return acc;
+}
+
+// Blended normals are renormalised; a degenerate sum falls back to "towards camera".
+fn unit_normal(n: vec3<f32>) -> vec3<f32> {
     let len = length(n);
-    let nrm = select(vec3<f32>(0.0, 0.0, 1.0), n / max(len, 1e-20), len > 1e-12);
-    return Blended(p, nrm);
+    return select(vec3<f32>(0.0, 0.0, 1.0), n / max(len, 1e-20), len > 1e-12);
+}
+
+fn blend_vertex(v: u32) -> Blended {
+    let nv = frame.mode.w;
+    let k_total = frame.counts.x;
+    let p = blend_texels(v, 2u * nv + v);
+    let n = blend_texels(nv + v, (2u + k_total) * nv + v);
+    return Blended(p, unit_normal(n));
+}
+
+fn blended_texel(i: u32) -> vec4<f32> {
+    return textureLoad(blended_tex, texel_coord(i), 0);
+}
+
+// Blended geometry of mesh vertex v on either path.
+fn vertex_geometry(v: u32) -> Blended {
+    if PER_VERTEX_BLEND {
+        return blend_vertex(v);
+    }
+    return Blended(blended_texel(v).xyz, blended_texel(frame.mode.w + v).xyz);
 }
 
 fn view_normal(n: vec3<f32>) -> vec3<f32> {
@@ -88,8 +133,7 @@ fn view_normal(n: vec3<f32>) -> vec3<f32> {
 }
 
 fn scalar_at(v: u32) -> f32 {
-    let w = frame.counts.y;
-    return textureLoad(scalar_tex, vec2<i32>(i32(v % w), i32(v / w)), 0).x;
+    return textureLoad(scalar_tex, texel_coord(v), 0).x;
 }
 
 // ---------------------------------------------------------------------------------------
@@ -110,7 +154,7 @@ fn vs_mesh(
     @location(1) layer: u32,
     @location(2) uv: vec2<f32>,
 ) -> MeshOut {
-    let b = blend_vertex(vertex);
+    let b = vertex_geometry(vertex);
     var out: MeshOut;
     out.clip = frame.clip_from_view * (frame.view_from_model * vec4<f32>(b.pos, 1.0));
     out.normal_view = view_normal(b.nrm);
@@ -238,7 +282,7 @@ fn vs_line(
     @location(1) layer: u32,
     @location(2) uv: vec2<f32>,
 ) -> LineOut {
-    let b = blend_vertex(vertex);
+    let b = vertex_geometry(vertex);
     var view = frame.view_from_model * vec4<f32>(b.pos, 1.0);
     // Pull the line slightly towards the eye (view-space origin) so it wins the depth test
     // against its own triangles. Depth bias is not allowed for line topologies in WebGPU,
@@ -275,7 +319,7 @@ fn vs_landmark(@builtin(vertex_index) corner: u32, @location(0) vertex: u32) -> 
         vec2<f32>(-1.0, 1.0),
     );
     let o = offsets[corner];
-    let b = blend_vertex(vertex);
+    let b = vertex_geometry(vertex);
     var clip = frame.clip_from_view * (frame.view_from_model * vec4<f32>(b.pos, 1.0));
     // Quad half-size slightly larger than the dot so the disk is not cut by the quad edge.
     let half_px = DOT_RADIUS_PX + 1.0;
@@ -320,4 +364,25 @@ fn vs_background(@builtin(vertex_index) i: u32) -> BgOut {
 @fragment
 fn fs_background(in: BgOut) -> @location(0) vec4<f32> {
     return vec4<f32>(textureSampleLevel(overlay_tex, lin_sampler, in.uv, 0.0).rgb, 1.0);
+}
+
+// ---------------------------------------------------------------------------------------
+// Blend pre-pass: vs_background's full-screen triangle over the blended_tex target, one
+// fragment per output texel (see blended_tex for the layout).
+
+@fragment
+fn fs_blend(in: BgOut) -> @location(0) vec4<f32> {
+    let nv = frame.mode.w;
+    let i = (u32(in.clip.y) << frame.counts.z) + u32(in.clip.x);
+    if i >= 2u * nv {
+        // Padding at the end of the last row.
+        return vec4<f32>(0.0);
+    }
+    // Texels [0, V) blend positions, [V, 2V) normals; both are "base texel i plus the
+    // deltas of the matching block", the same sums blend_vertex computes.
+    let is_normal = i >= nv;
+    let v = select(i, i - nv, is_normal);
+    let delta_block = select(2u, 2u + frame.counts.x, is_normal);
+    let acc = blend_texels(i, delta_block * nv + v);
+    return vec4<f32>(select(acc, unit_normal(acc), is_normal), 0.0);
 }

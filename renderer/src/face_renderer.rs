@@ -3,9 +3,12 @@ use crate::{
     DATA_TEXTURE_WIDTH, FrameParams, MAX_BLENDSHAPES, MeshData, RenderError, TextureLayers,
 };
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 use wgpu::util::DeviceExt;
 
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Format of the blend pre-pass target: the data texture's, so blended values are exact f32.
+const BLENDED_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const FLAG_HAS_MASK: u32 = 1;
 const FLAG_HAS_SCALARS: u32 = 2;
 
@@ -37,12 +40,69 @@ struct Attachments {
     msaa_color: Option<wgpu::TextureView>,
 }
 
+/// Resources of [`BlendPath::PrePass`].
+struct BlendPrepass {
+    /// Render target: blended positions then unit normals, `data_width` texels per row.
+    view: wgpu::TextureView,
+    pipeline: wgpu::RenderPipeline,
+    /// Frame uniform, weights and data texture only: the main bind group also holds the
+    /// blended texture, which cannot be sampled in the pass that renders to it.
+    bind_group: wgpu::BindGroup,
+}
+
 struct Pipelines {
     background: wgpu::RenderPipeline,
     depth_prepass: wgpu::RenderPipeline,
     mesh: wgpu::RenderPipeline,
     lines: wgpu::RenderPipeline,
     landmarks: wgpu::RenderPipeline,
+}
+
+/// Where the blendshape weights are applied. Both paths draw the same image (up to float
+/// rounding); they differ in cost and in what the device must support.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BlendPath {
+    /// When the weights or the mesh changed, one render pass blends every mesh vertex into
+    /// an `Rgba32Float` texture; every mesh-drawing pass then reads 2 texels per vertex.
+    /// Needs `Rgba32Float` as a render target (always on Vulkan, Metal, DX12 and WebGPU; on
+    /// WebGL2 only with `EXT_color_buffer_float`). See [`blend_prepass_supported`].
+    PrePass,
+    /// Every vertex shader invocation (per render corner, per pass) blends the active
+    /// shapes itself: 2 texel reads per active shape. Slower, works everywhere.
+    PerVertex,
+}
+
+/// Construction choices of [`FaceRenderer::with_options`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct RenderOptions {
+    /// MSAA sample count, 1 or 4. 4 smooths edges (goldens use it); 1 is markedly cheaper
+    /// on a software rasteriser such as lavapipe.
+    pub sample_count: u32,
+    pub blend_path: BlendPath,
+}
+
+impl RenderOptions {
+    /// The best this adapter supports for `format`: [`msaa_sample_count`] and the pre-pass
+    /// if [`blend_prepass_supported`].
+    pub fn for_adapter(adapter: &wgpu::Adapter, format: wgpu::TextureFormat) -> Self {
+        Self {
+            sample_count: msaa_sample_count(adapter, format),
+            blend_path: if blend_prepass_supported(adapter) {
+                BlendPath::PrePass
+            } else {
+                BlendPath::PerVertex
+            },
+        }
+    }
+}
+
+/// Whether [`BlendPath::PrePass`] works on this adapter: it renders into `Rgba32Float`,
+/// which WebGL2 only allows with `EXT_color_buffer_float` (wgpu reports that here).
+pub fn blend_prepass_supported(adapter: &wgpu::Adapter) -> bool {
+    adapter
+        .get_texture_format_features(BLENDED_FORMAT)
+        .allowed_usages
+        .contains(wgpu::TextureUsages::RENDER_ATTACHMENT)
 }
 
 /// Sample count to use for `format`: 4 if the adapter can multisample both it and the depth
@@ -71,6 +131,7 @@ pub struct FaceRenderer {
     device: wgpu::Device,
     target_format: wgpu::TextureFormat,
     sample_count: u32,
+    blend_path: BlendPath,
     counts: MeshCounts,
     data_width: u32,
     data_rows: u32,
@@ -88,6 +149,16 @@ pub struct FaceRenderer {
     has_overlay: bool,
     overlay_opacity: f32,
     sampler: wgpu::Sampler,
+    /// Blend pre-pass output, or a 1x1 placeholder on [`BlendPath::PerVertex`] (the bind
+    /// group layout is shared by both paths).
+    blended_texture: wgpu::Texture,
+    blend_prepass: Option<BlendPrepass>,
+    /// Set when the weights or the geometry changed since the last recorded blend pass.
+    /// Atomic because [`FaceRenderer::render`] takes `&self` (egui callbacks share it).
+    blend_dirty: AtomicBool,
+    /// The K weights last uploaded, so that re-setting the same values (a UI calling
+    /// [`FaceRenderer::set_weights`] every frame) neither uploads nor re-blends.
+    weights: Vec<f32>,
     bind_group_layout: wgpu::BindGroupLayout,
     bind_group: wgpu::BindGroup,
 
@@ -158,6 +229,11 @@ impl FaceRenderer {
     }
 
     /// Like [`Self::new`] with an explicit MSAA sample count (1 or 4).
+    ///
+    /// The blend path is [`BlendPath::PrePass`] except on the GL backend (WebGL2), where
+    /// rendering to `Rgba32Float` is an optional extension that cannot be queried without
+    /// the adapter; there [`Self::with_options`] with [`RenderOptions::for_adapter`] can
+    /// still enable it.
     pub fn with_sample_count(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
@@ -166,6 +242,33 @@ impl FaceRenderer {
         mesh: &MeshData,
         albedo: &TextureLayers,
     ) -> Result<Self, RenderError> {
+        let blend_path = if device.adapter_info().backend == wgpu::Backend::Gl {
+            BlendPath::PerVertex
+        } else {
+            BlendPath::PrePass
+        };
+        let options = RenderOptions {
+            sample_count,
+            blend_path,
+        };
+        Self::with_options(device, queue, target_format, options, mesh, albedo)
+    }
+
+    /// Like [`Self::new`] with explicit options; [`RenderOptions::for_adapter`] picks the
+    /// fastest the adapter supports. [`BlendPath::PrePass`] on a device that cannot render
+    /// to `Rgba32Float` is a wgpu validation error.
+    pub fn with_options(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        target_format: wgpu::TextureFormat,
+        options: RenderOptions,
+        mesh: &MeshData,
+        albedo: &TextureLayers,
+    ) -> Result<Self, RenderError> {
+        let RenderOptions {
+            sample_count,
+            blend_path,
+        } = options;
         if sample_count != 1 && sample_count != 4 {
             return Err(RenderError::InvalidInput(format!(
                 "sample count {sample_count} (use 1 or 4)"
@@ -182,7 +285,9 @@ impl FaceRenderer {
         }
 
         let max_dim = device.limits().max_texture_dimension_2d;
-        let data_width = DATA_TEXTURE_WIDTH.min(max_dim);
+        // A power of two, so the shaders address texels with shifts (see `texel_coord`).
+        let max_pow2 = 1u32 << (31 - max_dim.max(1).leading_zeros());
+        let data_width = DATA_TEXTURE_WIDTH.min(max_pow2);
         let data_rows = data_texel_count(&counts).div_ceil(data_width as u64);
         let data_rows = u32::try_from(data_rows).unwrap_or(u32::MAX).max(1);
         check_texture_fits(
@@ -264,8 +369,61 @@ impl FaceRenderer {
             ..Default::default()
         });
 
+        // Blended positions and normals: 2V texels in the data texture's row width, so the
+        // shader addresses both textures the same way.
+        let blended_rows = (2 * counts.vertices as u64).div_ceil(data_width as u64);
+        let blended_rows = u32::try_from(blended_rows).unwrap_or(u32::MAX);
+        let blended_texture = match blend_path {
+            BlendPath::PrePass => {
+                check_texture_fits(device, "blended geometry", data_width, blended_rows, 1)?;
+                device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some("face blended geometry"),
+                    size: wgpu::Extent3d {
+                        width: data_width,
+                        height: blended_rows,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format: BLENDED_FORMAT,
+                    usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                        | wgpu::TextureUsages::TEXTURE_BINDING,
+                    view_formats: &[],
+                })
+            }
+            BlendPath::PerVertex => create_2d(
+                device,
+                "face blended geometry (unused)",
+                BLENDED_FORMAT,
+                1,
+                1,
+            ),
+        };
+
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("face.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("face.wgsl").into()),
+        });
         let bind_group_layout = create_bind_group_layout(device);
-        let pipelines = create_pipelines(device, &bind_group_layout, target_format, sample_count);
+        let pipelines = create_pipelines(
+            device,
+            &module,
+            &bind_group_layout,
+            target_format,
+            sample_count,
+            blend_path,
+        );
+        let blend_prepass = (blend_path == BlendPath::PrePass).then(|| {
+            create_blend_prepass(
+                device,
+                &module,
+                &blended_texture,
+                &frame_buffer,
+                &weights_buffer,
+                &data_texture,
+            )
+        });
 
         let corner_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("face corners"),
@@ -304,12 +462,14 @@ impl FaceRenderer {
                 &overlay_texture,
             ],
             &sampler,
+            &blended_texture,
         );
 
         let renderer = Self {
             device: device.clone(),
             target_format,
             sample_count,
+            blend_path,
             counts,
             data_width,
             data_rows,
@@ -326,6 +486,11 @@ impl FaceRenderer {
             has_overlay: false,
             overlay_opacity: 1.0,
             sampler,
+            blended_texture,
+            blend_prepass,
+            blend_dirty: AtomicBool::new(true),
+            // Matches the zeroed weights buffer: no active shape.
+            weights: vec![0.0; counts.shapes as usize],
             bind_group_layout,
             bind_group,
             corner_buffer,
@@ -342,6 +507,7 @@ impl FaceRenderer {
             shapes = counts.shapes,
             data_rows,
             sample_count,
+            ?blend_path,
             "face renderer created"
         );
         Ok(renderer)
@@ -355,6 +521,17 @@ impl FaceRenderer {
     /// MSAA sample count in use (1 or 4).
     pub fn sample_count(&self) -> u32 {
         self.sample_count
+    }
+
+    /// Where the blendshape weights are applied.
+    pub fn blend_path(&self) -> BlendPath {
+        self.blend_path
+    }
+
+    /// Whether the next [`Self::render`] records the blend pre-pass (weights or geometry
+    /// changed since the last one). Always false on [`BlendPath::PerVertex`].
+    pub fn blend_pending(&self) -> bool {
+        self.blend_prepass.is_some() && self.blend_dirty.load(Ordering::Acquire)
     }
 
     /// Number of mesh vertices V.
@@ -379,6 +556,7 @@ impl FaceRenderer {
             },
             self.data_texture.size(),
         );
+        self.blend_dirty.store(true, Ordering::Release);
     }
 
     fn rebuild_bind_group(&mut self) {
@@ -394,12 +572,14 @@ impl FaceRenderer {
                 &self.overlay_texture,
             ],
             &self.sampler,
+            &self.blended_texture,
         );
     }
 
     /// Sets the K blendshape weights. Only the non-zero ones are uploaded, as a compact
-    /// `(index, weight)` list, so the vertex shader loops over active shapes only.
-    /// Takes effect at the next queue submission.
+    /// `(index, weight)` list, so the blend loops over active shapes only.
+    /// Takes effect at the next queue submission; on [`BlendPath::PrePass`] the next
+    /// [`Self::render`] records the blend pass (skipped while the weights stay unchanged).
     pub fn set_weights(&mut self, queue: &wgpu::Queue, weights: &[f32]) -> Result<(), RenderError> {
         let k = self.counts.shapes as usize;
         if weights.len() != k {
@@ -414,6 +594,10 @@ impl FaceRenderer {
                 weights[i]
             )));
         }
+        if self.weights == weights {
+            return Ok(());
+        }
+        self.weights.copy_from_slice(weights);
         let mut uniform = WeightsUniform::zeroed();
         let mut n = 0usize;
         for (i, &w) in weights.iter().enumerate() {
@@ -432,6 +616,7 @@ impl FaceRenderer {
             0,
             &bytemuck::bytes_of(&uniform)[..used],
         );
+        self.blend_dirty.store(true, Ordering::Release);
         Ok(())
     }
 
@@ -681,7 +866,12 @@ impl FaceRenderer {
                 self.counts.vertices,
             ],
             params: [params.heatmap_max, opacity, size.0 as f32, size.1 as f32],
-            counts: [self.counts.shapes, self.scalar_width, 0, 0],
+            counts: [
+                self.counts.shapes,
+                self.scalar_width,
+                self.data_width.trailing_zeros(),
+                0,
+            ],
         };
         let staging = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("face frame staging"),
@@ -695,6 +885,33 @@ impl FaceRenderer {
             0,
             size_of::<FrameUniform>() as u64,
         );
+
+        // After the frame-uniform copy: the blend pass reads V, K and the texture width from
+        // it. Later render calls (in this encoder or the next) reuse the blended texture.
+        if let Some(blend) = &self.blend_prepass
+            && self.blend_dirty.swap(false, Ordering::AcqRel)
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("face blend pre-pass"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &blend.view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        // Every texel is written by the full-screen triangle.
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&blend.pipeline);
+            pass.set_bind_group(0, &blend.bind_group, &[]);
+            pass.draw(0..3, 0..1);
+        }
 
         let attachments = self.attachments_for(size);
         let Some(att) = attachments.as_ref() else {
@@ -741,7 +958,10 @@ impl FaceRenderer {
         if self.counts.indices > 0 {
             pass.set_vertex_buffer(0, self.corner_buffer.slice(..));
             pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-            if opacity < 1.0 {
+            // The depth pre-pass only stops hidden layers showing through a translucent face.
+            // Opaque faces need none, and at opacity 0 the colour pass changes no colour
+            // whichever fragments win (while still writing the same depth for the lines).
+            if opacity < 1.0 && opacity > 0.0 {
                 pass.set_pipeline(&self.pipelines.depth_prepass);
                 pass.draw_indexed(0..self.counts.indices, 0, 0..1);
             }
@@ -803,6 +1023,7 @@ fn create_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
                 ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                 count: None,
             },
+            texture(8, false, D2),
         ],
     })
 }
@@ -814,7 +1035,9 @@ fn create_bind_group(
     // data, scalars, albedo (array), mask, overlay
     textures: [&wgpu::Texture; 5],
     sampler: &wgpu::Sampler,
+    blended: &wgpu::Texture,
 ) -> wgpu::BindGroup {
+    let blended_view = blended.create_view(&Default::default());
     let views: Vec<wgpu::TextureView> = textures
         .iter()
         .enumerate()
@@ -846,6 +1069,10 @@ fn create_bind_group(
         binding: 7,
         resource: wgpu::BindingResource::Sampler(sampler),
     });
+    entries.push(wgpu::BindGroupEntry {
+        binding: 8,
+        resource: wgpu::BindingResource::TextureView(&blended_view),
+    });
     device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("face"),
         layout,
@@ -853,16 +1080,128 @@ fn create_bind_group(
     })
 }
 
+/// Pipeline and bind group of the blend pre-pass (see `fs_blend` in `face.wgsl`).
+fn create_blend_prepass(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    target: &wgpu::Texture,
+    frame: &wgpu::Buffer,
+    weights: &wgpu::Buffer,
+    data: &wgpu::Texture,
+) -> BlendPrepass {
+    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("face blend pre-pass"),
+        entries: &[
+            wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: 1,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: 2,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
+            },
+        ],
+    });
+    let data_view = data.create_view(&Default::default());
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("face blend pre-pass"),
+        layout: &layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: frame.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: weights.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(&data_view),
+            },
+        ],
+    });
+    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("face blend pre-pass"),
+        bind_group_layouts: &[Some(&layout)],
+        immediate_size: 0,
+    });
+    let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("face blend pre-pass"),
+        layout: Some(&pipeline_layout),
+        vertex: wgpu::VertexState {
+            module,
+            entry_point: Some("vs_background"),
+            compilation_options: Default::default(),
+            buffers: &[],
+        },
+        primitive: Default::default(),
+        depth_stencil: None,
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module,
+            entry_point: Some("fs_blend"),
+            compilation_options: Default::default(),
+            targets: &[Some(wgpu::ColorTargetState {
+                format: BLENDED_FORMAT,
+                // Float32 targets are not blendable without a feature; none is needed.
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })],
+        }),
+        multiview_mask: None,
+        cache: None,
+    });
+    BlendPrepass {
+        view: target.create_view(&Default::default()),
+        pipeline,
+        bind_group,
+    }
+}
+
 fn create_pipelines(
     device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
     layout: &wgpu::BindGroupLayout,
     format: wgpu::TextureFormat,
     sample_count: u32,
+    blend_path: BlendPath,
 ) -> Pipelines {
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("face.wgsl"),
-        source: wgpu::ShaderSource::Wgsl(include_str!("face.wgsl").into()),
-    });
+    // Selects the vertex shaders' blending path (see `vertex_geometry` in face.wgsl).
+    let per_vertex = [(
+        "PER_VERTEX_BLEND",
+        if blend_path == BlendPath::PerVertex {
+            1.0
+        } else {
+            0.0
+        },
+    )];
+    let vertex_options = wgpu::PipelineCompilationOptions {
+        constants: &per_vertex,
+        ..Default::default()
+    };
     let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some("face"),
         bind_group_layouts: &[Some(layout)],
@@ -908,9 +1247,9 @@ fn create_pipelines(
             label: Some(v.label),
             layout: Some(&pipeline_layout),
             vertex: wgpu::VertexState {
-                module: &module,
+                module,
                 entry_point: Some(v.vs),
-                compilation_options: Default::default(),
+                compilation_options: vertex_options.clone(),
                 buffers: v.buffers,
             },
             primitive: wgpu::PrimitiveState {
@@ -932,7 +1271,7 @@ fn create_pipelines(
                 ..Default::default()
             },
             fragment: Some(wgpu::FragmentState {
-                module: &module,
+                module,
                 entry_point: Some(v.fs),
                 compilation_options: Default::default(),
                 targets: &[Some(wgpu::ColorTargetState {

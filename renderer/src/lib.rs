@@ -3,8 +3,12 @@
 //! Owns one thing: drawing a mesh with K blendshapes through wgpu, either offscreen
 //! ([`OffscreenRenderer`], headless, e.g. Mesa lavapipe) or into a texture owned by the app
 //! (for example one shown inside egui: [`FaceRenderer::render`] records passes into the
-//! caller's encoder). Blending happens in the vertex shader, so changing expression costs one
-//! small uniform upload per frame ([`FaceRenderer::set_weights`]).
+//! caller's encoder). Changing expression costs one small uniform upload
+//! ([`FaceRenderer::set_weights`]) and, on the default [`BlendPath::PrePass`], one blend
+//! render pass over the V mesh vertices at the next frame; frames with unchanged weights
+//! skip it. Where `Rgba32Float` cannot be rendered to (WebGL2 without
+//! `EXT_color_buffer_float`), [`BlendPath::PerVertex`] blends in every vertex shader
+//! instead: same image, more work per frame.
 //!
 //! It must not do anything else: no UI, no model loading, no ONNX/inference, no knowledge of
 //! the face model beyond its shared SH lighting definition. Input is plain data ([`MeshData`], [`TextureLayers`], weights); the app
@@ -14,7 +18,13 @@
 //! It must also run on WebGL2 (the web build), which shapes the design: no storage buffers
 //! and no compute. All per-vertex geometry (base shape and every delta) lives in one
 //! `Rgba32Float` 2D data texture read by vertex index; the weights are a compact list of
-//! active `(index, weight)` pairs in a uniform buffer.
+//! active `(index, weight)` pairs in a uniform buffer. The blend pre-pass is a fragment
+//! shader over a full-screen triangle whose pixels are mesh vertices, the WebGL2 stand-in
+//! for a compute pass.
+//!
+//! Cost on a software rasteriser (lavapipe) is dominated by MSAA and fragment shading once
+//! blending is a pre-pass: [`RenderOptions::sample_count`] 1 is much cheaper than the
+//! default 4 (see `benches/render.rs`).
 //!
 //! Colour is display-encoded end to end (albedo uploaded as `Rgba8Unorm`, render target
 //! `Rgba8Unorm`): no sRGB conversion anywhere, so pixels match what the model predicts.
@@ -29,12 +39,14 @@ pub mod synthetic;
 
 pub use camera::Camera;
 pub use error::RenderError;
-pub use face_renderer::{FaceRenderer, msaa_sample_count};
-pub use mesh::{MeshData, RenderVertex, TextureLayers};
-pub use offscreen::OffscreenRenderer;
 pub use face::sh::{
     directional_light as sh_directional, sh_basis, studio_light as sh_default_studio,
 };
+pub use face_renderer::{
+    BlendPath, FaceRenderer, RenderOptions, blend_prepass_supported, msaa_sample_count,
+};
+pub use mesh::{MeshData, RenderVertex, TextureLayers};
+pub use offscreen::{OffscreenOptions, OffscreenRenderer};
 
 /// SH coefficients with irradiance exactly 1 in every direction (albedo shows unchanged).
 pub fn sh_ambient() -> [f32; 27] {

@@ -1,4 +1,6 @@
-use crate::{FaceRenderer, FrameParams, MeshData, RenderError, TextureLayers, msaa_sample_count};
+use crate::{
+    BlendPath, FaceRenderer, FrameParams, MeshData, RenderError, RenderOptions, TextureLayers,
+};
 
 /// Format of the offscreen target: display-encoded, no sRGB conversion.
 const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
@@ -10,6 +12,14 @@ struct Target {
     view: wgpu::TextureView,
     readback: wgpu::Buffer,
     padded_bytes_per_row: u32,
+}
+
+/// Overrides of what [`OffscreenRenderer::new`] picks from the adapter; `None` keeps the
+/// adapter's best ([`RenderOptions::for_adapter`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct OffscreenOptions {
+    pub sample_count: Option<u32>,
+    pub blend_path: Option<BlendPath>,
 }
 
 /// Headless convenience: its own instance/adapter/device (lavapipe on a machine without a
@@ -27,6 +37,17 @@ pub struct OffscreenRenderer {
 
 impl OffscreenRenderer {
     pub fn new(mesh: &MeshData, albedo: &TextureLayers) -> Result<Self, RenderError> {
+        Self::with_options(mesh, albedo, OffscreenOptions::default())
+    }
+
+    /// Like [`Self::new`], with the sample count and/or blend path forced (benchmarks, and
+    /// tests that compare the paths). Forcing [`BlendPath::PrePass`] on an adapter without
+    /// `Rgba32Float` render targets is an error.
+    pub fn with_options(
+        mesh: &MeshData,
+        albedo: &TextureLayers,
+        overrides: OffscreenOptions,
+    ) -> Result<Self, RenderError> {
         // Validate before touching the GPU: cheaper, and the error is about the input.
         mesh.validate()?;
         let instance =
@@ -46,8 +67,18 @@ impl OffscreenRenderer {
         .map_err(|e| RenderError::RequestDevice(e.to_string()))?;
         let info = adapter.get_info();
         tracing::info!(adapter = %info.name, backend = ?info.backend, "offscreen renderer");
-        let samples = msaa_sample_count(&adapter, FORMAT);
-        let face = FaceRenderer::with_sample_count(&device, &queue, FORMAT, samples, mesh, albedo)?;
+        let best = RenderOptions::for_adapter(&adapter, FORMAT);
+        let options = RenderOptions {
+            sample_count: overrides.sample_count.unwrap_or(best.sample_count),
+            blend_path: overrides.blend_path.unwrap_or(best.blend_path),
+        };
+        if options.blend_path == BlendPath::PrePass && !crate::blend_prepass_supported(&adapter) {
+            return Err(RenderError::InvalidInput(format!(
+                "{}: Rgba32Float is not renderable, the blend pre-pass is unavailable",
+                info.name
+            )));
+        }
+        let face = FaceRenderer::with_options(&device, &queue, FORMAT, options, mesh, albedo)?;
         Ok(Self {
             device,
             queue,

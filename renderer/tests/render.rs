@@ -10,11 +10,11 @@
 
 use glam::{Mat4, Vec3};
 use image::RgbaImage;
-use renderer::golden::{Tolerance, assert_matches_golden};
+use renderer::golden::{Tolerance, assert_matches_golden, compare};
 use renderer::synthetic::{checker_albedo, uv_sphere};
 use renderer::{
-    Camera, FrameParams, MeshData, OffscreenRenderer, RenderError, TextureLayers, ViewMode,
-    sh_ambient,
+    BlendPath, Camera, FrameParams, MeshData, OffscreenOptions, OffscreenRenderer, RenderError,
+    TextureLayers, ViewMode, sh_ambient,
 };
 use std::path::PathBuf;
 
@@ -390,4 +390,125 @@ fn renderer_can_live_in_egui_callback_resources() {
     // egui_wgpu::CallbackResources needs Send + Sync + 'static.
     fn assert_send_sync<T: Send + Sync + 'static>() {}
     assert_send_sync::<renderer::FaceRenderer>();
+}
+
+/// Renders every view mode, an overlay at opacity 0.5, and a weight change on `r`.
+fn path_images(
+    r: &mut OffscreenRenderer,
+    mesh: &MeshData,
+    k_weights: &[Vec<f32>],
+) -> Vec<RgbaImage> {
+    let mut out = Vec::new();
+    let scalars: Vec<f32> = mesh.base_positions.iter().map(|p| p[1] + 1.0).collect();
+    r.face.set_vertex_scalars(&r.queue, Some(&scalars)).unwrap();
+    for w in k_weights {
+        r.face.set_weights(&r.queue, w).unwrap();
+        for view in ViewMode::ALL {
+            let mut p = params(view);
+            p.heatmap_max = 2.0;
+            out.push(r.render_image(SIZE, SIZE, &p).unwrap());
+        }
+    }
+    let overlay = RgbaImage::from_fn(SIZE, SIZE, |x, y| image::Rgba([x as u8, y as u8, 200, 255]));
+    let device = r.device.clone();
+    r.face
+        .set_overlay_image(&device, &r.queue, Some(&overlay), 0.5)
+        .unwrap();
+    out.push(
+        r.render_image(SIZE, SIZE, &params(ViewMode::Shaded))
+            .unwrap(),
+    );
+    out
+}
+
+#[test]
+fn per_vertex_fallback_draws_what_the_blend_prepass_draws() {
+    // The fallback is what WebGL2 without EXT_color_buffer_float runs; force it here. Both
+    // paths compute the same sums in the same order, so only float rounding may differ.
+    let albedo = checker_albedo(128, 8);
+    for (mesh, weights) in [
+        (
+            sphere(),
+            vec![vec![0.5, 1.0], vec![0.0, 0.0], vec![-0.3, 0.8]],
+        ),
+        // More shapes, and V large enough that the blended texture spans several rows.
+        (
+            uv_sphere(48, 64, 12),
+            vec![(0..12).map(|k| 0.9 - 0.15 * k as f32).collect()],
+        ),
+    ] {
+        let force = |blend_path| {
+            let r = OffscreenRenderer::with_options(
+                &mesh,
+                &albedo,
+                OffscreenOptions {
+                    blend_path: Some(blend_path),
+                    ..Default::default()
+                },
+            )
+            .expect("offscreen renderer");
+            assert_eq!(r.face.blend_path(), blend_path);
+            r
+        };
+        let prepass = path_images(&mut force(BlendPath::PrePass), &mesh, &weights);
+        let fallback = path_images(&mut force(BlendPath::PerVertex), &mesh, &weights);
+        for (i, (a, b)) in prepass.iter().zip(&fallback).enumerate() {
+            let cmp = compare(a, b, Tolerance::default()).expect("same size");
+            eprintln!(
+                "image {i}: max diff {}, {} pixels outside tolerance",
+                cmp.max_diff, cmp.pixels_outside
+            );
+            assert!(
+                cmp.passes(Tolerance::default()),
+                "image {i}: {}",
+                cmp.pixels_outside
+            );
+        }
+    }
+    // And the fallback on its own still matches the goldens.
+    let mut r = OffscreenRenderer::with_options(
+        &sphere(),
+        &albedo,
+        OffscreenOptions {
+            blend_path: Some(BlendPath::PerVertex),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    r.face.set_weights(&r.queue, &[0.5, 1.0]).unwrap();
+    for view in [ViewMode::Shaded, ViewMode::Normals, ViewMode::Wireframe] {
+        let img = r.render_image(SIZE, SIZE, &params(view)).unwrap();
+        let name = format!("{view:?}").to_lowercase();
+        assert_matches_golden(&golden(&name), &img, Tolerance::default());
+    }
+}
+
+#[test]
+fn blend_prepass_runs_only_after_a_change() {
+    let mut r = offscreen(&sphere(), &checker_albedo(64, 4));
+    if r.face.blend_path() != BlendPath::PrePass {
+        eprintln!("adapter cannot render Rgba32Float; nothing to test");
+        return;
+    }
+    let p = params(ViewMode::Normals);
+    assert!(r.face.blend_pending(), "the first frame blends");
+    let rest = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert!(!r.face.blend_pending());
+    // Re-setting the same weights (a UI doing it every frame) is not a change.
+    r.face.set_weights(&r.queue, &[0.0, 0.0]).unwrap();
+    assert!(!r.face.blend_pending());
+    r.face.set_weights(&r.queue, &[0.0, 0.9]).unwrap();
+    assert!(r.face.blend_pending());
+    let posed = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert!(changed_pixels(&rest, &posed, 8) >= 500);
+    // Frames without a change reuse the blended geometry.
+    let again = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert_eq!(changed_pixels(&posed, &again, 0), 0);
+    // New geometry re-blends too.
+    let mut moved = sphere();
+    moved.base_positions.iter_mut().for_each(|p| p[0] *= 1.3);
+    r.face.set_mesh_deltas(&r.queue, &moved).unwrap();
+    assert!(r.face.blend_pending());
+    let wider = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert!(changed_pixels(&again, &wider, 8) > 500);
 }
