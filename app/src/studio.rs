@@ -25,6 +25,11 @@ pub struct StudioState {
     pub demo_time_secs: f64,
     /// Last frame's CPU time for building and submitting the 3D view, in milliseconds.
     pub frame_time_ms: f32,
+    /// Time between the last two frames, in milliseconds.
+    pub frame_interval_ms: f32,
+    /// Show the timings in the toolbar (off in snapshot tests, where they would differ run
+    /// to run).
+    pub show_timings: bool,
     pub error: Option<String>,
 }
 
@@ -39,6 +44,8 @@ impl Default for StudioState {
             playing_demo: true,
             demo_time_secs: 0.0,
             frame_time_ms: 0.0,
+            frame_interval_ms: 0.0,
+            show_timings: true,
             error: None,
         }
     }
@@ -157,8 +164,15 @@ impl StudioApp {
                     self.state.view = view;
                 }
             }
-            ui.separator();
-            ui.label(format!("frame {:.1} ms", self.state.frame_time_ms));
+            if self.state.show_timings {
+                ui.separator();
+                ui.label(format!(
+                    "frame {:.1} ms ({:.0} fps), 3D view {:.1} ms",
+                    self.state.frame_interval_ms,
+                    1000.0 / self.state.frame_interval_ms.max(1e-3),
+                    self.state.frame_time_ms
+                ));
+            }
             if let StudioView::Mask(i) = self.state.view {
                 ui.separator();
                 ui.label(format!("mask A of {}", ICT_NAMES[i]));
@@ -270,6 +284,7 @@ impl StudioApp {
 
 impl eframe::App for StudioApp {
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+        self.state.frame_interval_ms = ui.input(|i| i.unstable_dt) * 1000.0;
         if self.state.playing_demo {
             let dt = ui.input(|i| i.stable_dt) as f64;
             self.state.demo_time_secs += dt.min(0.1);
