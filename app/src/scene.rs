@@ -228,15 +228,8 @@ impl Orbit {
 
     pub fn intrinsics(&self, width: u32, height: u32) -> Intrinsics {
         // The field of view spans the shorter side so the head fits any aspect ratio.
-        let short = width.min(height) as f32;
-        let focal_px = 0.5 * short / (0.5 * FIELD_OF_VIEW_DEG.to_radians()).tan();
-        Intrinsics {
-            focal_px,
-            cx: 0.5 * width as f32,
-            cy: 0.5 * height as f32,
-            width,
-            height,
-        }
+        let focal_px = face::camera::focal_length_px(width.min(height), FIELD_OF_VIEW_DEG);
+        Intrinsics::centered(width, height, focal_px)
     }
 
     pub fn camera(&self, width: u32, height: u32) -> Camera {

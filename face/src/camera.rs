@@ -84,6 +84,11 @@ impl HeadPose {
     }
 }
 
+/// Focal length in pixels that makes `extent_px` span `fov_deg`.
+pub fn focal_length_px(extent_px: u32, fov_deg: f32) -> f32 {
+    0.5 * extent_px as f32 / (0.5 * fov_deg.to_radians()).tan()
+}
+
 /// Pinhole intrinsics in pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Intrinsics {
@@ -97,7 +102,11 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// Centred principal point and the focal length of a horizontal field of view.
     pub fn from_fov(width: u32, height: u32, horizontal_fov_deg: f32) -> Self {
-        let focal_px = 0.5 * width as f32 / (0.5 * horizontal_fov_deg.to_radians()).tan();
+        Self::centered(width, height, focal_length_px(width, horizontal_fov_deg))
+    }
+
+    /// The principal point at the image centre.
+    pub fn centered(width: u32, height: u32, focal_px: f32) -> Self {
         Self {
             focal_px,
             cx: 0.5 * width as f32,

@@ -189,11 +189,7 @@ mod tests {
     use crate::albedo::{landmark_uvs, triangle_layer};
 
     fn template() -> Template {
-        let path = crate::template::default_template_path();
-        match Template::load_safetensors(&path) {
-            Ok(t) => t,
-            Err(e) => panic!("the parsing tests need the real template at {path:?}: {e}"),
-        }
+        crate::template::test_template()
     }
 
     /// UV (in its layer's tile) of some corner of a triangle whose vertices all lie in

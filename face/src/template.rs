@@ -100,6 +100,16 @@ pub fn default_template_path() -> PathBuf {
         .join(SAFETENSORS_FILE)
 }
 
+/// The real template for unit tests, which fail loudly (never skip) when it is missing.
+#[cfg(test)]
+pub(crate) fn test_template() -> Template {
+    let path = default_template_path();
+    match Template::load_safetensors(&path) {
+        Ok(t) => t,
+        Err(e) => panic!("these tests need the real template at {path:?}: {e}"),
+    }
+}
+
 impl Template {
     /// Number of vertices V.
     pub fn vertex_count(&self) -> usize {
