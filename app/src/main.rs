@@ -40,6 +40,13 @@ enum Command {
         #[arg(long, default_value = "likeness-demo")]
         out: PathBuf,
     },
+    /// Write the data the Python training code shares with Rust (attention masks, the
+    /// sampling function F, mean albedo, parsing map, and a parity reference for
+    /// equations (2) and (3)) to OUT/face_fixture.safetensors.
+    ExportFixture {
+        #[arg(long, default_value = "training/.cache")]
+        out: PathBuf,
+    },
     /// Render one view of the face to a PNG file without a window.
     Screenshot {
         #[arg(long)]
@@ -110,6 +117,10 @@ fn main() -> Result<()> {
         }
         Command::Studio { .. } => run_studio(scene)?,
         Command::Demo { out, .. } => report_written(&write_demo_views(&scene, &out, (800, 800))?),
+        Command::ExportFixture { out } => {
+            let path = likeness::fixture::export_fixture(&scene.model, &out)?;
+            println!("wrote {}", path.display());
+        }
         Command::Screenshot {
             out,
             weights,

@@ -162,3 +162,27 @@ fn the_headless_demo_writes_every_view() {
         );
     }
 }
+
+#[test]
+fn export_fixture_writes_the_tensors_training_needs() {
+    let dir = out_dir("fixture");
+    let o = likeness(&["export-fixture", "--out", dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bytes = std::fs::read(dir.join("face_fixture.safetensors")).expect("fixture written");
+    let st = safetensors::SafeTensors::deserialize(&bytes).expect("valid safetensors");
+    let shape = |name: &str| {
+        st.tensor(name)
+            .unwrap_or_else(|_| panic!("missing {name}"))
+            .shape()
+            .to_vec()
+    };
+    assert_eq!(shape("attention_masks"), vec![53, 128, 128]);
+    assert_eq!(shape("mean_albedo")[1..], [512, 512, 3]);
+    assert_eq!(shape("ref_shape_corrections"), vec![54, 128, 128, 3]);
+    let vertices = shape("sample_uv")[0];
+    assert_eq!(shape("ref_shape"), vec![vertices, 2 + 1]);
+    assert!(
+        !dir.join(".face_fixture.safetensors.tmp").exists(),
+        "no temporary file left behind"
+    );
+}
