@@ -1,0 +1,118 @@
+"""The paper's losses (section 3.4), as plain tensor functions.
+
+L = lambda_ph L_ph + lambda_lm L_lm + lambda_pa L_pa + lambda_sd L_sd + lambda_bg L_bg
+    + lambda_reg L_reg, with the appendix's weights in `PAPER_WEIGHTS`.
+
+Conventions: images are [B, H, W, C] (channels last, as the renderer produces them),
+masks [B, H, W] in {0, 1}, landmarks [B, 68, 2] in pixels, per-vertex fields [B, V, 3].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+# Appendix, "Training Details".
+PAPER_WEIGHTS = {"ph": 200.0, "lm": 0.1, "pa": 50.0, "sd": 2.5, "bg": 1.5, "reg": 1e-3}
+LAMBDA_GAMMA = 0.02
+
+
+def _l21(diff: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """sum_n [sum_q ||M(q) * diff(q)||_2 / sum_q M(q)] for diff [B, H, W, C]."""
+    # sqrt of a sum of squares has an infinite gradient at 0; the epsilon keeps the loss
+    # differentiable at the ground truth without changing its value measurably.
+    per_pixel = torch.sqrt((mask.unsqueeze(-1) * diff).pow(2).sum(-1) + 1e-12) * mask
+    return (per_pixel.flatten(1).sum(1) / mask.flatten(1).sum(1).clamp_min(1.0)).sum()
+
+
+def image_gradients(images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Forward differences along x and y of [B, H, W, C] images (cropped to a common size)."""
+    dx = images[:, :-1, 1:] - images[:, :-1, :-1]
+    dy = images[:, 1:, :-1] - images[:, :-1, :-1]
+    return dx, dy
+
+
+def photometric_loss(images: torch.Tensor, rendered: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """L_ph: the l_{2,1} loss over the mask M_n."""
+    return _l21(images - rendered, mask)
+
+
+def gradient_loss(images: torch.Tensor, rendered: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The photometric loss with the images replaced by their spatial gradients; a pixel
+    counts where both of its difference's pixels are inside the mask."""
+    gx_i, gy_i = image_gradients(images)
+    gx_r, gy_r = image_gradients(rendered)
+    m = mask[:, :-1, :-1] * mask[:, :-1, 1:] * mask[:, 1:, :-1]
+    return _l21(gx_i - gx_r, m) + _l21(gy_i - gy_r, m)
+
+
+def landmark_loss(landmarks: torch.Tensor, predicted: torch.Tensor) -> torch.Tensor:
+    """L_lm: mean squared distance of the 68 landmarks, in pixels^2, summed over images."""
+    return (landmarks - predicted).pow(2).sum(-1).mean(-1).sum()
+
+
+def parsing_loss(parsing: torch.Tensor, predicted: torch.Tensor) -> torch.Tensor:
+    """L_pa = sum_n ||I_pa - I^_pa||_2 over soft (one-hot) parsing images [B, H, W, K]."""
+    return torch.sqrt((parsing - predicted).pow(2).flatten(1).sum(1) + 1e-12).sum()
+
+
+def smoothness_loss(dS0_vertices: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
+    """L_sd = sum_v sum_{u in N(v)} ||dS0(v) - dS0(u)||^2.
+
+    `edges` [E, 2] lists every undirected edge once; the double sum visits each twice.
+    """
+    d = dS0_vertices[:, edges[:, 0]] - dS0_vertices[:, edges[:, 1]]
+    return 2.0 * d.pow(2).sum(-1).sum(-1).sum()
+
+
+def unique_edges(triangles: torch.Tensor) -> torch.Tensor:
+    """[E, 2] undirected edges of a triangle list, each once."""
+    e = torch.cat([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    e = torch.sort(e, dim=1).values
+    return torch.unique(e, dim=0)
+
+
+def triangle_frames(vertices: torch.Tensor, triangles: torch.Tensor) -> torch.Tensor:
+    """Sumner and Popovic's frames [..., T, 3, 3] (columns e1, e2, n / sqrt|n|)."""
+    a = vertices[..., triangles[:, 0], :]
+    b = vertices[..., triangles[:, 1], :]
+    c = vertices[..., triangles[:, 2], :]
+    e1, e2 = b - a, c - a
+    n = torch.linalg.cross(e1, e2)
+    e3 = n / torch.sqrt(n.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+    return torch.stack([e1, e2, e3], dim=-1)
+
+
+@dataclass
+class GradientOperator:
+    """Deformation gradients G_{S0 -> S} = V(S) V(S0)^-1 for a fixed rest mesh S0."""
+
+    triangles: torch.Tensor
+    rest_inverse: torch.Tensor  # [T, 3, 3]
+
+    @staticmethod
+    def for_rest(rest: torch.Tensor, triangles: torch.Tensor) -> "GradientOperator":
+        frames = triangle_frames(rest.double(), triangles)
+        # Degenerate rest triangles (none in the face region) would have no inverse.
+        keep = frames.det().abs() > 1e-12
+        return GradientOperator(triangles[keep], torch.linalg.inv(frames[keep]).to(rest.dtype))
+
+    def __call__(self, deformed: torch.Tensor) -> torch.Tensor:
+        return triangle_frames(deformed, self.triangles) @ self.rest_inverse
+
+
+def blendshape_gradient_loss(op: GradientOperator, template_shapes: torch.Tensor, corrected_shapes: torch.Tensor) -> torch.Tensor:
+    """L_bg = sum_i ||G_{S0 -> S_i + dS_i} - G_{S0 -> S_i}||^2 (Frobenius, summed over
+    triangles), for shapes [..., 53, V, 3]."""
+    return (op(corrected_shapes) - op(template_shapes)).pow(2).sum()
+
+
+def regularization_loss(w: torch.Tensor, gamma: torch.Tensor, lambda_gamma: float = LAMBDA_GAMMA) -> torch.Tensor:
+    """L_reg = ||w||_1 + ||gamma - gamma_mean||_2 + lambda_gamma ||gamma||_2, where
+    gamma_mean repeats the mean over the three colour channels (monochromatic light)."""
+    g = gamma.view(-1, 3, 9)
+    mono = g.mean(dim=1, keepdim=True).expand_as(g)
+    colour = torch.sqrt((g - mono).pow(2).flatten(1).sum(1) + 1e-12)
+    size = torch.sqrt(g.pow(2).flatten(1).sum(1) + 1e-12)
+    return w.abs().sum() + (colour + lambda_gamma * size).sum()

@@ -1,0 +1,239 @@
+"""ModelNet and TrackNet, as the paper's architecture tables describe them.
+
+ModelNet (appendix, Table (a) and (b)): a shared encoder per image, Conv7x7 s2 -> maxpool
+3x3 s2 -> pairs of 3x3 convs (s1 then s2) up to 512 channels; the per-image features of the
+N images of one person are averaged; two decoders (shape and albedo) of four 4x4 stride-2
+deconvolutions to 128x128x64, each followed by two 1x1 convs: one to the static correction
+(128x128x3: dS_0 or dR_0) and one to the 53 per-blendshape corrections (128x128x(53*3):
+dS_i or dR_i). Every conv and deconv is followed by BatchNorm and ReLU, except the output
+1x1 convs, which must be able to produce negative corrections.
+
+TrackNet: a ResNet-18 encoder and fully connected layers to w (53, sigmoid), Euler angles
+(3), translation (3) and SH lighting gamma (27).
+
+Deviations, both configurable and recorded in the model manifest:
+- input size: the paper uses 224; at 128 the encoder ends at 4x4 instead of 7x7, so the
+  first decoder deconvolution uses stride 4 (4 -> 16) instead of stride 2 with no padding
+  (7 -> 16); the rest of the decoder is unchanged.
+- channel width: `width` scales every channel count (1.0 = the paper's), because on two CPU
+  cores the full-width networks train about 3x slower (see docs/training.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+NUM_BLENDSHAPES = 53
+UV_SIZE = 128
+
+
+def _ch(channels: int, width: float) -> int:
+    return max(8, int(round(channels * width)))
+
+
+def conv_bn_relu(cin: int, cout: int, kernel: int, stride: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, kernel, stride, padding=kernel // 2, bias=False),
+        nn.BatchNorm2d(cout),
+        nn.ReLU(inplace=True),
+    )
+
+
+def deconv_bn_relu(cin: int, cout: int, stride: int, padding: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.ConvTranspose2d(cin, cout, 4, stride, padding=padding, bias=False),
+        nn.BatchNorm2d(cout),
+        nn.ReLU(inplace=True),
+    )
+
+
+class ModelEncoder(nn.Module):
+    """Table (a): 224 -> 7x7x512 (128 -> 4x4x512)."""
+
+    def __init__(self, width: float = 1.0):
+        super().__init__()
+        c64, c128, c256, c512 = (_ch(c, width) for c in (64, 128, 256, 512))
+        self.layers = nn.Sequential(
+            conv_bn_relu(3, c64, 7, 2),
+            nn.MaxPool2d(3, 2, padding=1),
+            conv_bn_relu(c64, c128, 3, 1),
+            conv_bn_relu(c128, c128, 3, 2),
+            conv_bn_relu(c128, c256, 3, 1),
+            conv_bn_relu(c256, c256, 3, 2),
+            conv_bn_relu(c256, c512, 3, 1),
+            conv_bn_relu(c512, c512, 3, 2),
+        )
+        self.out_channels = c512
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return self.layers(images)
+
+
+class CorrectionDecoder(nn.Module):
+    """Table (b): feature -> 128x128x64 -> (static [3], per-blendshape [53*3]) maps."""
+
+    def __init__(self, in_channels: int, feature_size: int, width: float = 1.0):
+        super().__init__()
+        c512, c256, c128, c64 = (_ch(c, width) for c in (512, 256, 128, 64))
+        # The paper's 7 -> 16 is a stride-2 deconvolution without padding; from a 4x4
+        # feature (128 px input) the same 16x16 needs stride 4.
+        if feature_size == 7:
+            first = deconv_bn_relu(in_channels, c512, stride=2, padding=0)
+        elif feature_size == 4:
+            first = deconv_bn_relu(in_channels, c512, stride=4, padding=0)
+        else:
+            raise ValueError(f"ModelNet supports 224 or 128 px inputs (feature 7 or 4), got {feature_size}")
+        self.trunk = nn.Sequential(
+            first,
+            deconv_bn_relu(c512, c256, 2, 1),
+            deconv_bn_relu(c256, c128, 2, 1),
+            deconv_bn_relu(c128, c64, 2, 1),
+        )
+        self.static_head = nn.Conv2d(c64, 3, 1)
+        self.blendshape_head = nn.Conv2d(c64, 3 * NUM_BLENDSHAPES, 1)
+        # Start from the template: zero corrections until the losses ask for them.
+        for head in (self.static_head, self.blendshape_head):
+            nn.init.zeros_(head.weight)
+            nn.init.zeros_(head.bias)
+
+    def forward(self, feature: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x = self.trunk(feature)
+        static = self.static_head(x)
+        per_shape = self.blendshape_head(x)
+        b = per_shape.shape[0]
+        return static, per_shape.view(b, NUM_BLENDSHAPES, 3, UV_SIZE, UV_SIZE)
+
+
+@dataclass
+class Corrections:
+    """ModelNet's output for a batch of people: UV maps [P, 3, 128, 128] and
+    [P, 53, 3, 128, 128]. Shape corrections are in template units (cm) times `shape_scale`."""
+
+    dS0: torch.Tensor
+    dS: torch.Tensor
+    dR0: torch.Tensor
+    dR: torch.Tensor
+
+
+class ModelNet(nn.Module):
+    """Personal corrections from N images of one person (feature averaging makes N free)."""
+
+    def __init__(self, input_size: int = 128, width: float = 1.0, shape_scale: float = 1.0, albedo_scale: float = 1.0):
+        super().__init__()
+        self.encoder = ModelEncoder(width)
+        feature_size = {224: 7, 128: 4}.get(input_size)
+        if feature_size is None:
+            raise ValueError(f"input_size must be 224 or 128, got {input_size}")
+        self.shape_decoder = CorrectionDecoder(self.encoder.out_channels, feature_size, width)
+        self.albedo_decoder = CorrectionDecoder(self.encoder.out_channels, feature_size, width)
+        self.shape_scale = shape_scale
+        self.albedo_scale = albedo_scale
+
+    def forward(self, images: torch.Tensor) -> Corrections:
+        """images: [P, N, 3, H, W] (P people, N images each) or [N, 3, H, W] (one person)."""
+        if images.dim() == 4:
+            images = images.unsqueeze(0)
+        p, n = images.shape[:2]
+        features = self.encoder(images.flatten(0, 1))
+        # The person's common feature: the mean over their N images (paper, section 3.2).
+        feature = features.view(p, n, *features.shape[1:]).mean(dim=1)
+        dS0, dS = self.shape_decoder(feature)
+        dR0, dR = self.albedo_decoder(feature)
+        return Corrections(dS0 * self.shape_scale, dS * self.shape_scale, dR0 * self.albedo_scale, dR * self.albedo_scale)
+
+
+class BasicBlock(nn.Module):
+    def __init__(self, cin: int, cout: int, stride: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(cout)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(cout)
+        self.relu = nn.ReLU(inplace=True)
+        self.down = None
+        if stride != 1 or cin != cout:
+            self.down = nn.Sequential(nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        identity = x if self.down is None else self.down(x)
+        out = self.relu(self.bn1(self.conv1(x)))
+        out = self.bn2(self.conv2(out))
+        return self.relu(out + identity)
+
+
+class ResNet18Encoder(nn.Module):
+    """ResNet-18 (He et al.) with a width multiplier; torchvision's is fixed at full width."""
+
+    def __init__(self, width: float = 1.0):
+        super().__init__()
+        c = [_ch(x, width) for x in (64, 128, 256, 512)]
+        self.stem = nn.Sequential(
+            nn.Conv2d(3, c[0], 7, 2, 3, bias=False), nn.BatchNorm2d(c[0]), nn.ReLU(inplace=True), nn.MaxPool2d(3, 2, 1)
+        )
+        layers = []
+        cin = c[0]
+        for i, cout in enumerate(c):
+            stride = 1 if i == 0 else 2
+            layers += [BasicBlock(cin, cout, stride), BasicBlock(cout, cout, 1)]
+            cin = cout
+        self.layers = nn.Sequential(*layers)
+        self.pool = nn.AdaptiveAvgPool2d(1)
+        self.out_features = cin
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return self.pool(self.layers(self.stem(images))).flatten(1)
+
+
+@dataclass
+class TrackParams:
+    """Per-image tracking parameters p_n = (w, R, t, gamma)."""
+
+    w: torch.Tensor  # [B, 53] in [0, 1]
+    euler: torch.Tensor  # [B, 3] (yaw, pitch, roll) radians
+    translation: torch.Tensor  # [B, 3] cm, camera space
+    gamma: torch.Tensor  # [B, 27]
+
+
+class TrackNet(nn.Module):
+    """ResNet-18 + fully connected layers -> w (sigmoid), Euler angles, translation, gamma.
+
+    The raw outputs are offsets from a prior (mean translation, mean lighting) so that an
+    untrained network starts at a face in front of the camera under ambient light.
+    """
+
+    def __init__(
+        self,
+        width: float = 1.0,
+        hidden: int = 512,
+        translation_prior: tuple[float, float, float] = (0.0, 0.0, -60.0),
+        gamma_prior: torch.Tensor | None = None,
+    ):
+        super().__init__()
+        self.encoder = ResNet18Encoder(width)
+        self.fc = nn.Sequential(nn.Linear(self.encoder.out_features, hidden), nn.ReLU(inplace=True))
+        self.head = nn.Linear(hidden, NUM_BLENDSHAPES + 3 + 3 + 27)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+        # w = sigmoid(x) starts at 0.5 with zero logits; start near 0 instead (sparse prior).
+        with torch.no_grad():
+            self.head.bias[:NUM_BLENDSHAPES] = -4.0
+        self.register_buffer("translation_prior", torch.tensor(translation_prior, dtype=torch.float32))
+        if gamma_prior is None:
+            gamma_prior = torch.zeros(27)
+        self.register_buffer("gamma_prior", gamma_prior.float().clone())
+
+    def forward(self, images: torch.Tensor) -> TrackParams:
+        raw = self.head(self.fc(self.encoder(images)))
+        w = torch.sigmoid(raw[:, :NUM_BLENDSHAPES])
+        euler = raw[:, NUM_BLENDSHAPES : NUM_BLENDSHAPES + 3]
+        # Translation offsets in tens of centimetres keep the output scale near 1.
+        translation = self.translation_prior + 10.0 * raw[:, NUM_BLENDSHAPES + 3 : NUM_BLENDSHAPES + 6]
+        gamma = self.gamma_prior + raw[:, NUM_BLENDSHAPES + 6 :]
+        return TrackParams(w, euler, translation, gamma)
+
+
+def parameter_count(module: nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())

@@ -1,0 +1,126 @@
+"""Each loss is zero at the ground truth, grows away from it, and has the gradient finite
+differences give."""
+
+import math
+
+import pytest
+import torch
+
+from likeness_train import losses as L
+
+torch.manual_seed(0)
+
+
+def _images(b=2, h=12, w=10):
+    return torch.rand(b, h, w, 3, dtype=torch.float64)
+
+
+def _mask(b=2, h=12, w=10):
+    m = torch.zeros(b, h, w, dtype=torch.float64)
+    m[:, 2:10, 1:8] = 1
+    return m
+
+
+def _grows(fn, truth, direction):
+    values = [fn(truth + s * direction).item() for s in (0.0, 0.1, 0.3, 1.0)]
+    assert values[0] == pytest.approx(0.0, abs=1e-5), values
+    assert values[1] < values[2] < values[3], values
+
+
+def test_photometric_and_gradient_losses():
+    img, mask = _images(), _mask()
+    noise = torch.randn_like(img)
+    _grows(lambda r: L.photometric_loss(img, r, mask), img, noise)
+    _grows(lambda r: L.gradient_loss(img, r, mask), img, noise)
+    # Outside the mask nothing counts.
+    outside = img.clone()
+    outside[:, 0] += 5
+    assert L.photometric_loss(img, outside, mask).item() == pytest.approx(0.0, abs=1e-5)
+    # l2,1: a constant colour error e on every masked pixel gives |e| per image.
+    shifted = img + torch.tensor([0.3, 0.4, 0.0], dtype=torch.float64)
+    assert L.photometric_loss(img, shifted, mask).item() == pytest.approx(2 * 0.5, rel=1e-6)
+    # A constant shift has no image gradient.
+    assert L.gradient_loss(img, shifted, mask).item() == pytest.approx(0.0, abs=1e-4)
+
+
+def test_landmark_and_parsing_losses():
+    lm = torch.rand(3, 68, 2, dtype=torch.float64) * 100
+    _grows(lambda p: L.landmark_loss(lm, p), lm, torch.randn_like(lm))
+    assert L.landmark_loss(lm, lm + torch.tensor([3.0, 4.0], dtype=torch.float64)).item() == pytest.approx(3 * 25.0)
+    pa = torch.softmax(torch.randn(2, 8, 8, 9, dtype=torch.float64), -1)
+    _grows(lambda p: L.parsing_loss(pa, p), pa, torch.randn_like(pa))
+
+
+def _grid_mesh(n=5):
+    ys, xs = torch.meshgrid(torch.arange(n), torch.arange(n), indexing="ij")
+    verts = torch.stack([xs.flatten(), ys.flatten(), torch.zeros(n * n, dtype=torch.long)], -1).double()
+    tris = []
+    for y in range(n - 1):
+        for x in range(n - 1):
+            a, b, c, d = y * n + x, y * n + x + 1, (y + 1) * n + x, (y + 1) * n + x + 1
+            tris += [[a, b, d], [a, d, c]]
+    return verts, torch.tensor(tris)
+
+
+def test_smoothness_loss():
+    verts, tris = _grid_mesh()
+    edges = L.unique_edges(tris)
+    # Grid 5x5: 40 axis edges + 16 diagonals.
+    assert edges.shape == (56, 2)
+    constant = torch.full((1, verts.shape[0], 3), 0.7, dtype=torch.float64)
+    assert L.smoothness_loss(constant, edges).item() == 0.0
+    _grows(lambda x: L.smoothness_loss(x, edges), constant, torch.randn_like(constant))
+    # One unit bump at an interior vertex of valence 6: 6 edges, each counted twice.
+    bump = torch.zeros_like(constant)
+    bump[0, 12, 2] = 1.0
+    assert L.smoothness_loss(bump, edges).item() == pytest.approx(12.0)
+
+
+def test_deformation_gradient_and_blendshape_gradient_loss():
+    verts, tris = _grid_mesh()
+    verts = verts + 0.1 * torch.randn_like(verts)  # non-planar, generic
+    op = L.GradientOperator.for_rest(verts, tris)
+    angle = 0.6
+    rot = torch.tensor([[math.cos(angle), -math.sin(angle), 0], [math.sin(angle), math.cos(angle), 0], [0, 0, 1.0]], dtype=torch.float64)
+    g = op(verts @ rot.T + 3.0)
+    assert torch.allclose(g, rot.expand_as(g), atol=1e-9)
+    shapes = torch.stack([verts + 0.2 * torch.randn_like(verts) for _ in range(3)])
+    _grows(lambda s: L.blendshape_gradient_loss(op, shapes, s), shapes, torch.randn_like(shapes))
+    # A pure translation of a corrected shape keeps its gradients: the loss ignores it.
+    assert L.blendshape_gradient_loss(op, shapes, shapes + 1.5).item() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_regularization_loss():
+    w = torch.zeros(4, 53, dtype=torch.float64)
+    mono = torch.randn(4, 1, 9, dtype=torch.float64).expand(4, 3, 9).reshape(4, 27)
+    # Monochromatic light costs only lambda_gamma * ||gamma||.
+    expected = L.LAMBDA_GAMMA * mono.norm(dim=1).sum()
+    # (up to the sqrt epsilon, 1e-6 per image)
+    assert L.regularization_loss(w, mono).item() == pytest.approx(expected.item(), abs=1e-5)
+    assert L.regularization_loss(w, torch.zeros(4, 27, dtype=torch.float64)).item() == pytest.approx(0.0, abs=1e-5)
+    w2 = torch.full((4, 53), 0.1, dtype=torch.float64)
+    assert L.regularization_loss(w2, torch.zeros(4, 27, dtype=torch.float64)).item() == pytest.approx(4 * 53 * 0.1, abs=1e-4)
+    coloured = mono.clone()
+    coloured[:, 0] += 1.0
+    assert L.regularization_loss(w, coloured) > L.regularization_loss(w, mono)
+
+
+def test_gradients_match_finite_differences():
+    img, mask = _images(1, 6, 5), _mask(1, 6, 5)
+    rendered = (img + 0.1 * torch.randn_like(img)).requires_grad_()
+    assert torch.autograd.gradcheck(lambda r: L.photometric_loss(img, r, mask), (rendered,))
+    assert torch.autograd.gradcheck(lambda r: L.gradient_loss(img, r, mask), (rendered,))
+    verts, tris = _grid_mesh(3)
+    op = L.GradientOperator.for_rest(verts + 0.05 * torch.randn_like(verts), tris)
+    template = torch.stack([verts + 0.1 * torch.randn_like(verts)])
+    corrected = (template + 0.05 * torch.randn_like(template)).requires_grad_()
+    assert torch.autograd.gradcheck(lambda s: L.blendshape_gradient_loss(op, template, s), (corrected,))
+    edges = L.unique_edges(tris)
+    x = torch.randn(1, verts.shape[0], 3, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda v: L.smoothness_loss(v, edges), (x,))
+    w = torch.rand(2, 53, dtype=torch.float64, requires_grad=True)
+    gamma = torch.randn(2, 27, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b: L.regularization_loss(a, b), (w, gamma))
+    lm = torch.rand(1, 68, 2, dtype=torch.float64)
+    pred = torch.rand(1, 68, 2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda p: L.landmark_loss(lm, p), (pred,))

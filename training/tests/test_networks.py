@@ -1,0 +1,57 @@
+"""Shapes and structure of ModelNet and TrackNet against the paper's architecture tables."""
+
+import pytest
+import torch
+
+from likeness_train.networks import ModelNet, TrackNet, parameter_count
+
+
+@pytest.mark.parametrize("size", [128, 224])
+def test_model_net_maps_have_the_papers_shapes(size):
+    net = ModelNet(input_size=size, width=0.25).eval()
+    out = net(torch.randn(2, 3, 3, size, size))  # 2 people x 3 images
+    assert out.dS0.shape == (2, 3, 128, 128)
+    assert out.dS.shape == (2, 53, 3, 128, 128)
+    assert out.dR0.shape == (2, 3, 128, 128)
+    assert out.dR.shape == (2, 53, 3, 128, 128)
+
+
+def test_model_net_starts_at_the_template():
+    net = ModelNet(width=0.25).eval()
+    out = net(torch.randn(1, 4, 3, 128, 128))
+    for m in (out.dS0, out.dS, out.dR0, out.dR):
+        assert torch.count_nonzero(m) == 0
+
+
+def test_model_net_averages_features_so_the_order_of_images_does_not_matter():
+    torch.manual_seed(0)
+    net = ModelNet(width=0.25).eval()
+    with torch.no_grad():
+        for head in (net.shape_decoder.static_head, net.albedo_decoder.blendshape_head):
+            head.weight.normal_(0, 0.1)
+    images = torch.randn(1, 4, 3, 128, 128)
+    a = net(images)
+    b = net(images[:, [2, 0, 3, 1]])
+    assert torch.allclose(a.dS0, b.dS0, atol=1e-5)
+    assert torch.allclose(a.dR, b.dR, atol=1e-5)
+    # A single image works too (N is free at test time).
+    single = net(images[0, :1])
+    assert single.dS0.shape == (1, 3, 128, 128)
+
+
+def test_model_net_full_width_matches_the_table_parameter_scale():
+    # Table (a)+(b) at full width: ~18.6M parameters (docs/training.md measured 18.6M).
+    n = parameter_count(ModelNet(width=1.0))
+    assert 17e6 < n < 20e6, n
+
+
+def test_track_net_outputs_and_priors():
+    net = TrackNet(width=0.5).eval()
+    p = net(torch.randn(5, 3, 128, 128))
+    assert p.w.shape == (5, 53) and p.euler.shape == (5, 3)
+    assert p.translation.shape == (5, 3) and p.gamma.shape == (5, 27)
+    assert torch.all((p.w >= 0) & (p.w <= 1))
+    # Untrained: sparse weights, frontal pose, the prior translation.
+    assert p.w.max() < 0.05
+    assert torch.allclose(p.translation, torch.tensor([0.0, 0.0, -60.0]).expand(5, 3))
+    assert parameter_count(TrackNet(width=1.0).encoder) == pytest.approx(11.18e6, rel=0.02)
