@@ -1,0 +1,1 @@
+"""Likeness training: the paper's ModelNet + TrackNet, trained self-supervised on synthetic people."""
