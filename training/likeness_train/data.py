@@ -1,0 +1,114 @@
+"""Training and evaluation batches: synthetic people rendered into images with every
+ground-truth value kept (the data the paper got from 94k real videos).
+
+A batch is P people x N frames. Images are rendered on the full head (eyes, teeth and
+mouth interior included, so the face looks like a face) with the person's true albedo
+(equation (3) with their dR_0, dR_i) and composited over a background with blur, noise and
+compression. The 2D landmarks and the parsing image come from the same render.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from . import render as R
+from .face import FaceModel
+from .synthetic import ComposeConfig, SyntheticConfig, SyntheticPeople, compose_image
+
+# Layers of the fixture's mean albedo (face, head, gums+tongue, teeth, eyeball, eyelashes);
+# eyelashes are alpha cards and are not drawn (as in the Rust renderer).
+EYELASH_LAYER = 5
+
+
+@dataclass
+class Batch:
+    """P people x N frames; per-frame tensors have a leading axis of P*N (person-major)."""
+
+    images: torch.Tensor  # [P*N, 3, H, W] in [0, 1]
+    landmarks: torch.Tensor  # [P*N, 68, 2] pixels
+    parsing: torch.Tensor  # [P*N, H, W, K] soft one-hot
+    weights: torch.Tensor  # [P*N, 53]
+    euler: torch.Tensor  # [P*N, 3]
+    translation: torch.Tensor  # [P*N, 3]
+    gamma: torch.Tensor  # [P*N, 27]
+    focal: torch.Tensor  # [P*N]
+    principal: torch.Tensor  # [P*N, 2]
+    vertices: torch.Tensor  # [P*N, Vf, 3] true model-space face-region vertices
+    dS: torch.Tensor  # [P, 53, 3, 128, 128] true expression corrections
+    dR0: torch.Tensor  # [P, 3, 128, 128]
+    dR: torch.Tensor  # [P, 53, 3, 128, 128]
+    identity_coeffs: torch.Tensor  # [P, 100]
+    people: int
+    frames: int
+
+
+class SyntheticData:
+    """Deterministic batches: batch k of seed s is always the same, so training resumes
+    exactly and held-out people are simply another seed."""
+
+    def __init__(self, model: FaceModel, region: FaceModel, seed: int, image_size: int, frames: int, compose: ComposeConfig | None = None):
+        self.model = model
+        self.region = region
+        self.image_size = image_size
+        self.frames = frames
+        self.people = SyntheticPeople(model, seed=seed, config=SyntheticConfig(image_size=image_size))
+        self.compose = compose or ComposeConfig()
+        self.seed = seed
+        fixture = model.fixture
+        layer = torch.from_numpy(np.asarray(fixture.triangle_layer)).long()
+        drawn = (layer >= 0) & (layer != EYELASH_LAYER)
+        self.triangles = model.triangles[drawn].long()
+        layers = fixture.mean_albedo.shape[0]
+        # One texture atlas, the layers side by side, so one texture lookup serves all parts.
+        corner_uv = torch.from_numpy(np.asarray(fixture.triangle_corner_uv))[drawn].float()
+        corner_layer = layer[drawn].float()[:, None]
+        u = (corner_uv[..., 0].clamp(0, 1) + corner_layer) / layers
+        self.corner_uv = torch.stack([u, corner_uv[..., 1]], dim=-1)
+        atlas = torch.from_numpy(np.asarray(fixture.mean_albedo)).float()  # [L, h, w, 3]
+        self.atlas = torch.cat(list(atlas.permute(0, 3, 1, 2)), dim=-1)  # [3, h, L*w]
+        self.layer_width = atlas.shape[2]
+        parsing = torch.from_numpy(np.asarray(fixture.parsing_map)).long()  # [L, h, w]
+        k = len(fixture.parsing_labels)
+        onehot = F.one_hot(parsing, k).permute(0, 3, 1, 2).float()  # [L, K, h, w]
+        self.parsing_atlas = torch.cat(list(onehot), dim=-1)[None]  # [1, K, h, L*w]
+        # The face layer's parsing map T for rendering predictions on the face region.
+        self.parsing_face = onehot[0][None]
+        self.labels = k
+
+    def batch(self, index: int, people: int) -> Batch:
+        rng = np.random.default_rng([self.seed, 7, index])
+        items = []
+        for p in range(people):
+            person = self.people.person(index * people + p)
+            frames = self.people.group(index * people + p, 0, self.frames)
+            items.append((person, self.people.truth(self.model, person, frames)))
+        truth = {key: torch.cat([t[key] for _, t in items]) for key in ("weights", "euler", "translation", "gamma", "focal", "principal", "vertices", "landmarks_3d", "albedo", "rotation")}
+        n = truth["weights"].shape[0]
+        texture = self.atlas.expand(n, -1, -1, -1).clone()
+        texture[..., : self.layer_width] = truth["albedo"]
+        size = self.image_size
+        with torch.no_grad():
+            out = R.render(
+                truth["vertices"], self.triangles, self.corner_uv, texture, truth["gamma"], truth["rotation"], truth["translation"],
+                truth["focal"], truth["principal"][:, 0], truth["principal"][:, 1], size, size,
+                parsing_texture=self.parsing_atlas, clamp_irradiance=True,
+            )
+            pixels, _ = R.project(truth["landmarks_3d"], truth["rotation"], truth["translation"], truth["focal"], truth["principal"][:, 0], truth["principal"][:, 1])
+        rendered = out.image.clamp(0, 1).numpy()
+        images = compose_image(rendered, out.coverage.numpy(), rng, self.compose)
+        images = torch.as_tensor(np.asarray(images), dtype=torch.float32).permute(0, 3, 1, 2).contiguous()
+        region_vertices = self.region_vertices(truth["vertices"])
+        stack = lambda key: torch.stack([getattr(person, key) for person, _ in items])  # noqa: E731
+        return Batch(
+            images=images, landmarks=pixels, parsing=out.parsing, weights=truth["weights"], euler=truth["euler"],
+            translation=truth["translation"], gamma=truth["gamma"], focal=truth["focal"], principal=truth["principal"],
+            vertices=region_vertices, dS=stack("dS"), dR0=stack("dR0"), dR=stack("dR"), identity_coeffs=stack("identity_coeffs"),
+            people=people, frames=self.frames,
+        )
+
+    def region_vertices(self, full_vertices: torch.Tensor) -> torch.Tensor:
+        return full_vertices.index_select(1, self.region.vertex_ids)

@@ -1,0 +1,252 @@
+"""Two-stage self-supervised training of ModelNet + TrackNet (paper, section 3 and 4).
+
+Stage 1: both networks, all losses, Adam lr 1e-4. Stage 2: TrackNet frozen, ModelNet
+fine-tuned with lr 1e-5 without the tracking regulariser.
+
+`python -m likeness_train.train --out runs/full` trains (and resumes from
+`runs/full/checkpoint.pt` if it exists); the ablation rows use the same command with
+`--no-expression-corrections`, `--no-dynamic-albedo`, `--no-parsing-loss`,
+`--no-gradient-loss`. Progress goes to stdout and `runs/.../log.jsonl`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from . import losses as L
+from . import render as R
+from .data import Batch, SyntheticData
+from .export import IMAGE_MEAN, IMAGE_STD, git_commit
+from .face import FaceModel
+from .networks import Corrections, ModelNet, TrackNet, TrackParams
+
+
+@dataclass
+class TrainConfig:
+    input_size: int = 128
+    track_width: float = 0.5
+    model_width: float = 0.5
+    people_per_batch: int = 4
+    frames: int = 4  # N, as the paper
+    stage1_steps: int = 4000
+    stage2_steps: int = 1000
+    lr_stage1: float = 1e-4
+    lr_stage2: float = 1e-5
+    seed: int = 1
+    expression_corrections: bool = True  # dS_i (row B of the ablation)
+    dynamic_albedo: bool = True  # dR_i (row C)
+    parsing_loss: bool = True  # L_pa (row D)
+    gradient_loss: bool = True  # L_bg (final row)
+    weights: dict = field(default_factory=lambda: dict(L.PAPER_WEIGHTS))
+    checkpoint_every_s: float = 300.0
+    threads: int = 2
+
+
+class Trainer:
+    def __init__(self, config: TrainConfig, out_dir: Path):
+        self.cfg = config
+        self.out = out_dir
+        torch.manual_seed(config.seed)
+        self.model = FaceModel.load()
+        self.region = self.model.restricted()
+        self.data = SyntheticData(self.model, self.region, seed=config.seed, image_size=config.input_size, frames=config.frames)
+        region = self.model.face_region()
+        self.corner_uv = region.corner_uv.float()
+        self.edges = L.unique_edges(self.region.triangles.long())
+        self.gradient_op = L.GradientOperator.for_rest(self.region.neutral, self.region.triangles.long())
+        self.template_shapes = self.region.neutral + self.region.expression_deltas  # S_i [53, Vf, 3]
+        gamma_prior = torch.zeros(27)
+        gamma_prior[[0, 9, 18]] = 0.7 / (torch.pi / (4 * torch.pi) ** 0.5)  # ambient 0.7
+        self.track = TrackNet(width=config.track_width, gamma_prior=gamma_prior)
+        self.modelnet = ModelNet(input_size=config.input_size, width=config.model_width)
+        # R_0^t: the trainable mean albedo, initialised with R_0 (paper, eq. (3)).
+        self.mean_albedo = nn.Parameter(self.region.mean_albedo_face.clone())
+        self.step = 0
+        self.stage = 1
+        self.optimizer = self._optimizer()
+        self.started = time.time()
+        self.elapsed_before = 0.0
+
+    def _optimizer(self) -> torch.optim.Optimizer:
+        if self.stage == 1:
+            params = list(self.track.parameters()) + list(self.modelnet.parameters()) + [self.mean_albedo]
+            return torch.optim.Adam(params, lr=self.cfg.lr_stage1)
+        return torch.optim.Adam(list(self.modelnet.parameters()) + [self.mean_albedo], lr=self.cfg.lr_stage2)
+
+    # --- checkpoints -----------------------------------------------------------------
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.out / "checkpoint.pt"
+
+    def save(self, metrics: dict | None = None) -> None:
+        self.out.mkdir(parents=True, exist_ok=True)
+        state = {
+            "config": {**asdict(self.cfg), "blendshape_names": self.model.expression_names},
+            "step": self.step,
+            "stage": self.stage,
+            "track_net": self.track.state_dict(),
+            "model_net": self.modelnet.state_dict(),
+            "mean_albedo": self.mean_albedo.detach(),
+            "optimizer": self.optimizer.state_dict(),
+            "elapsed_s": self.elapsed(),
+            "commit": git_commit(),
+            "metrics": metrics or {},
+        }
+        tmp = self.checkpoint_path.with_suffix(".tmp")
+        torch.save(state, tmp)
+        tmp.replace(self.checkpoint_path)  # atomic: an interruption never leaves half a file
+
+    def resume(self) -> bool:
+        if not self.checkpoint_path.exists():
+            return False
+        state = torch.load(self.checkpoint_path, map_location="cpu", weights_only=False)
+        self.track.load_state_dict(state["track_net"])
+        self.modelnet.load_state_dict(state["model_net"])
+        with torch.no_grad():
+            self.mean_albedo.copy_(state["mean_albedo"])
+        self.step, self.stage = state["step"], state["stage"]
+        self.optimizer = self._optimizer()
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.elapsed_before = state.get("elapsed_s", 0.0)
+        self.started = time.time()
+        return True
+
+    def elapsed(self) -> float:
+        return self.elapsed_before + time.time() - self.started
+
+    # --- one step --------------------------------------------------------------------
+
+    def normalise(self, images: torch.Tensor) -> torch.Tensor:
+        mean = torch.tensor(IMAGE_MEAN).view(1, 3, 1, 1)
+        std = torch.tensor(IMAGE_STD).view(1, 3, 1, 1)
+        return (images - mean) / std
+
+    def predict(self, batch: Batch) -> tuple[TrackParams, Corrections]:
+        x = self.normalise(batch.images)
+        params = self.track(x)
+        size = self.cfg.input_size
+        corrections = self.modelnet(x.view(batch.people, batch.frames, 3, size, size))
+        if not self.cfg.expression_corrections:
+            corrections.dS = torch.zeros_like(corrections.dS)
+        if not self.cfg.dynamic_albedo:
+            corrections.dR = torch.zeros_like(corrections.dR)
+        return params, corrections
+
+    def losses(self, batch: Batch, params: TrackParams, c: Corrections, with_reg: bool) -> dict[str, torch.Tensor]:
+        n = batch.frames
+        per_frame = lambda t: t.repeat_interleave(n, dim=0)  # noqa: E731  person -> frames
+        shape = self.region.shape(params.w, per_frame(c.dS0), per_frame(c.dS))
+        albedo = self.region.albedo(params.w, per_frame(c.dR0), per_frame(c.dR), mean_albedo=self.mean_albedo)
+        rotation = R.euler_to_matrix(params.euler)
+        size = self.cfg.input_size
+        out = R.render(
+            shape, self.region.triangles.long(), self.corner_uv, albedo, params.gamma, rotation, params.translation,
+            batch.focal, batch.principal[:, 0], batch.principal[:, 1], size, size,
+            parsing_texture=self.data.parsing_face if self.cfg.parsing_loss else None,
+        )
+        images = batch.images.permute(0, 2, 3, 1)
+        landmarks, _ = R.project(self.region.landmarks(shape), rotation, params.translation, batch.focal, batch.principal[:, 0], batch.principal[:, 1])
+        terms = {
+            "ph": L.photometric_loss(images, out.image, out.mask) + L.gradient_loss(images, out.image, out.mask),
+            "lm": L.landmark_loss(batch.landmarks, landmarks),
+            "sd": L.smoothness_loss(self.region.sample_uv(c.dS0), self.edges),
+        }
+        if self.cfg.parsing_loss:
+            terms["pa"] = L.parsing_loss(batch.parsing, out.parsing)
+        if self.cfg.gradient_loss and self.cfg.expression_corrections:
+            # S_i + F(A_i dS_i) for every blendshape of every person: [P, 53, Vf, 3].
+            corrected = self.region.neutral + self.region.blendshapes(c.dS)
+            terms["bg"] = L.blendshape_gradient_loss(self.gradient_op, self.template_shapes[None].expand_as(corrected), corrected)
+        if with_reg:
+            terms["reg"] = L.regularization_loss(params.w, params.gamma)
+        # Per-image averages keep the paper's weights meaningful at any batch size.
+        frames = batch.people * batch.frames
+        return {k: v / (batch.people if k in ("sd", "bg") else frames) for k, v in terms.items()}
+
+    def train_step(self) -> dict[str, float]:
+        batch = self.data.batch(self.step, self.cfg.people_per_batch)
+        frozen_tracking = self.stage == 2
+        self.track.train(not frozen_tracking)
+        self.modelnet.train()
+        if frozen_tracking:
+            with torch.no_grad():
+                params = self.track(self.normalise(batch.images))
+            _, corrections = self.predict_model_only(batch)
+        else:
+            params, corrections = self.predict(batch)
+        terms = self.losses(batch, params, corrections, with_reg=not frozen_tracking)
+        total = sum(self.cfg.weights[k] * v for k, v in terms.items())
+        self.optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        self.optimizer.step()
+        self.step += 1
+        return {"total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+
+    def predict_model_only(self, batch: Batch) -> tuple[None, Corrections]:
+        size = self.cfg.input_size
+        x = self.normalise(batch.images)
+        corrections = self.modelnet(x.view(batch.people, batch.frames, 3, size, size))
+        if not self.cfg.expression_corrections:
+            corrections.dS = torch.zeros_like(corrections.dS)
+        if not self.cfg.dynamic_albedo:
+            corrections.dR = torch.zeros_like(corrections.dR)
+        return None, corrections
+
+    def run(self, log_every: int = 10) -> None:
+        torch.set_num_threads(self.cfg.threads)
+        self.out.mkdir(parents=True, exist_ok=True)
+        log = (self.out / "log.jsonl").open("a")
+        last_save = time.time()
+        total_steps = self.cfg.stage1_steps + self.cfg.stage2_steps
+        while self.step < total_steps:
+            if self.stage == 1 and self.step >= self.cfg.stage1_steps:
+                self.stage = 2
+                self.optimizer = self._optimizer()
+                self.save()
+            t0 = time.time()
+            values = self.train_step()
+            values.update(step=self.step, stage=self.stage, step_s=round(time.time() - t0, 3), elapsed_s=round(self.elapsed(), 1))
+            if self.step % log_every == 0 or self.step == total_steps:
+                line = json.dumps(values)
+                print(line, flush=True)
+                log.write(line + "\n")
+                log.flush()
+            if time.time() - last_save > self.cfg.checkpoint_every_s:
+                self.save()
+                last_save = time.time()
+        self.save()
+
+
+def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, required=True)
+    defaults = TrainConfig()
+    for name in ("input_size", "people_per_batch", "frames", "stage1_steps", "stage2_steps", "seed", "threads"):
+        parser.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(defaults, name))
+    for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "checkpoint_every_s"):
+        parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(defaults, name))
+    for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
+        parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")
+    args = vars(parser.parse_args(argv))
+    out = args.pop("out")
+    return TrainConfig(**args), out
+
+
+def main(argv: list[str] | None = None) -> None:
+    config, out = config_from_args(argv)
+    trainer = Trainer(config, out)
+    if trainer.resume():
+        print(f"resumed from {trainer.checkpoint_path} at step {trainer.step} (stage {trainer.stage})", flush=True)
+    trainer.run()
+
+
+if __name__ == "__main__":
+    main()

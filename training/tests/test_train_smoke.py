@@ -1,0 +1,59 @@
+"""A smoke training: a few steps of both stages on tiny networks, a resume after an
+interruption, and the export with its ONNX Runtime parity check (CI runs this, not a full
+training)."""
+
+import json
+import math
+
+import torch
+
+from likeness_train.export import main as export_main
+from likeness_train.train import TrainConfig, Trainer
+
+
+def _config(**overrides):
+    base = dict(people_per_batch=1, frames=2, stage1_steps=2, stage2_steps=1, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
+    base.update(overrides)
+    return TrainConfig(**base)
+
+
+def test_smoke_training_resumes_and_exports(tmp_path, capsys):
+    out = tmp_path / "run"
+    trainer = Trainer(_config(stage1_steps=1, stage2_steps=0), out)
+    trainer.run(log_every=1)
+    assert trainer.checkpoint_path.exists()
+    first = torch.load(trainer.checkpoint_path, weights_only=False)
+    assert first["step"] == 1
+
+    # "Interrupted" after step 1: a new trainer with more stage-1 steps picks up from there.
+    stage1 = Trainer(_config(stage2_steps=0), out)
+    assert stage1.resume() and stage1.step == 1
+    stage1.run(log_every=1)
+    assert stage1.step == 2
+    track_after_stage1 = {k: v.clone() for k, v in stage1.track.state_dict().items()}
+    model_after_stage1 = {k: v.clone() for k, v in stage1.modelnet.state_dict().items()}
+
+    # Stage 2 freezes TrackNet (weights and batch-norm statistics) and fine-tunes ModelNet.
+    resumed = Trainer(_config(), out)
+    assert resumed.resume() and resumed.step == 2
+    resumed.run(log_every=1)
+    assert resumed.step == 3 and resumed.stage == 2
+    for k, v in resumed.track.state_dict().items():
+        assert torch.equal(v, track_after_stage1[k]), f"TrackNet {k} changed in stage 2"
+    assert any(not torch.equal(v, model_after_stage1[k]) for k, v in resumed.modelnet.state_dict().items())
+    lines = (out / "log.jsonl").read_text().splitlines()
+    assert len(lines) == 3
+    for line in lines:
+        assert all(math.isfinite(v) for v in json.loads(line).values() if isinstance(v, float))
+
+    export_main(["--checkpoint", str(resumed.checkpoint_path), "--out", str(tmp_path / "models")])
+    printed = capsys.readouterr().out
+    assert "max abs difference" in printed
+    assert (tmp_path / "models" / "manifest.json").exists()
+
+
+def test_ablation_flags_switch_terms_off(tmp_path):
+    trainer = Trainer(_config(parsing_loss=False, gradient_loss=False, expression_corrections=False, stage1_steps=1, stage2_steps=0), tmp_path / "a")
+    values = trainer.train_step()
+    assert "pa" not in values and "bg" not in values
+    assert {"ph", "lm", "sd", "reg"} <= set(values)
