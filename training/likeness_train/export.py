@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .networks import ModelNet, TrackNet
+from .networks import ModelNet, TrackNet, load_networks
 
 # Input normalisation shared by training and inference: RGB in [0, 1], then (x - mean) / std.
 IMAGE_MEAN = (0.5, 0.5, 0.5)
@@ -126,13 +126,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--checkpoint", type=Path, required=True)
     parser.add_argument("--out", type=Path, default=Path("assets/models"))
+    parser.add_argument("--metrics", type=Path, default=None, help="results.json of `python -m likeness_train.evaluate` for the manifest's `metrics`")
     args = parser.parse_args(argv)
-    ckpt = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
-    cfg = ckpt["config"]
-    track = TrackNet(width=cfg["track_width"])
-    model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
-    track.load_state_dict(ckpt["track_net"])
-    model.load_state_dict(ckpt["model_net"])
+    nets = load_networks(args.checkpoint)
+    cfg, ckpt, track, model = nets.config, nets.checkpoint, nets.track, nets.model
     track_path, model_path = export_onnx(track, model, cfg["input_size"], args.out)
     diffs = parity(track, model, track_path, model_path, cfg["input_size"])
     manifest = Manifest(
@@ -142,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
         blendshape_names=list(cfg["blendshape_names"]),
         camera=cfg.get("camera", {}),
         training_commit=ckpt.get("commit", git_commit()),
-        metrics=ckpt.get("metrics", {}),
+        metrics=json.loads(args.metrics.read_text())["metrics"] if args.metrics else ckpt.get("metrics", {}),
     )
     (args.out / "manifest.json").write_text(json.dumps(asdict(manifest), indent=2) + "\n")
     print(f"wrote {track_path} ({track_path.stat().st_size / 1e6:.1f} MB), {model_path} ({model_path.stat().st_size / 1e6:.1f} MB)")

@@ -338,6 +338,27 @@ class FaceModel(torch.nn.Module):
         """sum_k alpha_k (I_k - S_0): [B, 100] -> [B, V, 3] (the ICT identity model)."""
         return torch.einsum("bk,kvc->bvc", identity_coeffs, self.identity_deltas.to(identity_coeffs.dtype))
 
+    def weighted_sum(self, weights: torch.Tensor, maps: torch.Tensor) -> torch.Tensor:
+        """sum_i w_i A_i maps_i: weights [B, 53], maps [B or P, 53, C, H, W] -> [B, C, H, W].
+
+        Maps may be per image (B) or per person (P, with the B images person-major in
+        groups of B / P, as in training): ModelNet predicts one set per person, and
+        expanding it to every image first would copy ~40 MB per image for nothing.
+        """
+        masked = self.masked(maps)
+        b, p = weights.shape[0], maps.shape[0]
+        if p == b:
+            return torch.einsum("bi,bichw->bchw", weights, masked)
+        if b % p:
+            raise ValueError(f"{b} images cannot be split into groups for {p} people")
+        out = torch.einsum("pni,pichw->pnchw", weights.view(p, b // p, -1), masked)
+        return out.reshape(b, *out.shape[2:])
+
+    @staticmethod
+    def per_image(maps: torch.Tensor, images: int) -> torch.Tensor:
+        """Per-person maps [P, ...] repeated for person-major groups of images."""
+        return maps if maps.shape[0] == images else maps.repeat_interleave(images // maps.shape[0], dim=0)
+
     def masked(self, dS: torch.Tensor) -> torch.Tensor:
         """A_i dS_i: [B, 53, C, H, W] -> same shape."""
         return dS * self.masks.to(dS.dtype)[None, :, None]
@@ -352,7 +373,8 @@ class FaceModel(torch.nn.Module):
         """Equation (2): S = w_0 S_0 + F(dS_0) + sum_i w_i [S_i + F(A_i dS_i)], w_0 = 1 - sum w_i,
         i.e. S_0 + F(dS_0) + sum_i w_i [(S_i - S_0) + F(A_i dS_i)].
 
-        weights [B, 53]; dS0 [B, 3, 128, 128]; dS [B, 53, 3, 128, 128]; identity_coeffs
+        weights [B, 53]; dS0 [B, 3, 128, 128]; dS [B, 53, 3, 128, 128] (dS0 and dS may also
+        be per person, see `weighted_sum`); identity_coeffs
         [B, 100] optionally replaces S_0 by the ICT identity S_0 + sum_k alpha_k I_k (the
         expression deltas are added unchanged, as in the ICT light model). Returns [B, V, 3].
 
@@ -366,9 +388,9 @@ class FaceModel(torch.nn.Module):
             out = out + self.identity_offset(identity_coeffs)
         uv = None
         if dS0 is not None:
-            uv = dS0
+            uv = self.per_image(dS0, weights.shape[0])
         if dS is not None:
-            combined = torch.einsum("bi,bichw->bchw", weights, self.masked(dS))
+            combined = self.weighted_sum(weights, dS)
             uv = combined if uv is None else uv + combined
         if uv is not None:
             out = out + self.sample_uv(uv)
@@ -398,9 +420,9 @@ class FaceModel(torch.nn.Module):
         b = weights.shape[0]
         out = torch.zeros(b, 3, CORRECTION_SIZE, CORRECTION_SIZE, dtype=weights.dtype, device=weights.device)
         if dR0 is not None:
-            out = out + dR0
+            out = out + self.per_image(dR0, b)
         if dR is not None:
-            out = out + torch.einsum("bi,bichw->bchw", weights, self.masked(dR))
+            out = out + self.weighted_sum(weights, dR)
         return out
 
     def albedo(

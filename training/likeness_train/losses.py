@@ -108,6 +108,42 @@ def blendshape_gradient_loss(op: GradientOperator, template_shapes: torch.Tensor
     return (op(corrected_shapes) - op(template_shapes)).pow(2).sum()
 
 
+class SupportedGradientLoss:
+    """L_bg evaluated only where it can be non-zero, with the template's gradients cached.
+
+    dS_i enters as F(A_i dS_i), which vanishes at vertices outside the support of A_i, so a
+    triangle none of whose corners is in that support has G_{S0 -> S_i + dS_i} equal to
+    G_{S0 -> S_i} and contributes exactly 0. Restricting each blendshape to its supported
+    triangles, and computing the template side once, gives the same value for a fraction
+    of the work (the dense form costs seconds per step on two cores).
+    """
+
+    def __init__(self, rest: torch.Tensor, triangles: torch.Tensor, template_shapes: torch.Tensor, support: torch.Tensor):
+        op = GradientOperator.for_rest(rest, triangles)
+        shape_idx, tri_idx = [], []
+        for i in range(template_shapes.shape[0]):
+            touched = support[i][op.triangles].any(dim=1).nonzero().flatten()
+            shape_idx.append(torch.full_like(touched, i))
+            tri_idx.append(touched)
+        self.shape_idx = torch.cat(shape_idx)
+        self.corners = op.triangles[torch.cat(tri_idx)]  # [M, 3]
+        self.rest_inverse = op.rest_inverse[torch.cat(tri_idx)]  # [M, 3, 3]
+        self.template_gradients = self._gradients(template_shapes[None]).detach()
+
+    def _gradients(self, shapes: torch.Tensor) -> torch.Tensor:
+        v = shapes[:, self.shape_idx[:, None], self.corners]  # [P, M, 3 corners, 3 xyz]
+        e1, e2 = v[:, :, 1] - v[:, :, 0], v[:, :, 2] - v[:, :, 0]
+        n = torch.linalg.cross(e1, e2)
+        e3 = n / torch.sqrt(n.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+        frames = torch.stack([e1, e2, e3], dim=-1)
+        # A plain einsum: torch's batched 3x3 matmul is much slower at this size.
+        return torch.einsum("pmij,mjk->pmik", frames, self.rest_inverse)
+
+    def __call__(self, corrected_shapes: torch.Tensor) -> torch.Tensor:
+        """corrected_shapes [P, 53, V, 3] -> sum over people of L_bg."""
+        return (self._gradients(corrected_shapes) - self.template_gradients).pow(2).sum()
+
+
 def regularization_loss(w: torch.Tensor, gamma: torch.Tensor, lambda_gamma: float = LAMBDA_GAMMA) -> torch.Tensor:
     """L_reg = ||w||_1 + ||gamma - gamma_mean||_2 + lambda_gamma ||gamma||_2, where
     gamma_mean repeats the mean over the three colour channels (monochromatic light)."""

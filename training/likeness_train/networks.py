@@ -237,3 +237,26 @@ class TrackNet(nn.Module):
 
 def parameter_count(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
+
+
+@dataclass
+class TrainedNetworks:
+    """The networks of a training checkpoint (`train.Trainer.save`), in eval mode."""
+
+    config: dict
+    track: TrackNet
+    model: ModelNet
+    mean_albedo: torch.Tensor | None  # R_0^t [3, 512, 512]
+    checkpoint: dict
+
+
+def load_networks(path) -> TrainedNetworks:
+    """Rebuilds TrackNet and ModelNet from a checkpoint's config and weights (shared by the
+    export and the evaluation; the priors are buffers, so they come with the weights)."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    cfg = ckpt["config"]
+    track = TrackNet(width=cfg["track_width"])
+    model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
+    track.load_state_dict(ckpt["track_net"])
+    model.load_state_dict(ckpt["model_net"])
+    return TrainedNetworks(cfg, track.eval(), model.eval(), ckpt.get("mean_albedo"), ckpt)

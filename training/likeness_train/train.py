@@ -6,7 +6,9 @@ fine-tuned with lr 1e-5 without the tracking regulariser.
 `python -m likeness_train.train --out runs/full` trains (and resumes from
 `runs/full/checkpoint.pt` if it exists); the ablation rows use the same command with
 `--no-expression-corrections`, `--no-dynamic-albedo`, `--no-parsing-loss`,
-`--no-gradient-loss`. Progress goes to stdout and `runs/.../log.jsonl`.
+`--no-gradient-loss`. Progress goes to stdout and `runs/.../log.jsonl`. `--data DIR` reads
+pre-rendered batches written by `python -m likeness_train.dataset` (same seed, size, N and
+P); without it batches are rendered on the fly (~110 ms per 128 px image).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from torch import nn
 from . import losses as L
 from . import render as R
 from .data import Batch, SyntheticData
+from .dataset import CachedData
 from .export import IMAGE_MEAN, IMAGE_STD, git_commit
 from .face import FaceModel
 from .networks import Corrections, ModelNet, TrackNet, TrackParams
@@ -47,6 +50,7 @@ class TrainConfig:
     weights: dict = field(default_factory=lambda: dict(L.PAPER_WEIGHTS))
     checkpoint_every_s: float = 300.0
     threads: int = 2
+    data: str | None = None  # cache directory of pre-rendered batches (dataset.py)
 
 
 class Trainer:
@@ -56,12 +60,15 @@ class Trainer:
         torch.manual_seed(config.seed)
         self.model = FaceModel.load()
         self.region = self.model.restricted()
-        self.data = SyntheticData(self.model, self.region, seed=config.seed, image_size=config.input_size, frames=config.frames)
-        region = self.model.face_region()
-        self.corner_uv = region.corner_uv.float()
+        self.synthetic = SyntheticData(self.model, self.region, seed=config.seed, image_size=config.input_size, frames=config.frames)
+        # The cache holds exactly the batches `synthetic` renders; it renders what is missing.
+        self.data = CachedData(Path(config.data), fallback=self.synthetic) if config.data else self.synthetic
+        self.corner_uv = self.model.face_region().corner_uv.float()
         self.edges = L.unique_edges(self.region.triangles.long())
-        self.gradient_op = L.GradientOperator.for_rest(self.region.neutral, self.region.triangles.long())
-        self.template_shapes = self.region.neutral + self.region.expression_deltas  # S_i [53, Vf, 3]
+        template_shapes = self.region.neutral + self.region.expression_deltas  # S_i [53, Vf, 3]
+        with torch.no_grad():
+            support = self.region.sample_uv(self.region.masks[None])[0].T > 0  # [53, Vf]: F(A_i) > 0
+        self.gradient_loss = L.SupportedGradientLoss(self.region.neutral, self.region.triangles.long(), template_shapes, support)
         gamma_prior = torch.zeros(27)
         gamma_prior[[0, 9, 18]] = 0.7 / (torch.pi / (4 * torch.pi) ** 0.5)  # ambient 0.7
         self.track = TrackNet(width=config.track_width, gamma_prior=gamma_prior)
@@ -125,35 +132,22 @@ class Trainer:
     # --- one step --------------------------------------------------------------------
 
     def normalise(self, images: torch.Tensor) -> torch.Tensor:
-        mean = torch.tensor(IMAGE_MEAN).view(1, 3, 1, 1)
-        std = torch.tensor(IMAGE_STD).view(1, 3, 1, 1)
-        return (images - mean) / std
+        return normalise(images)
 
     def predict(self, batch: Batch) -> tuple[TrackParams, Corrections]:
         x = self.normalise(batch.images)
         params = self.track(x)
         size = self.cfg.input_size
-        corrections = self.modelnet(x.view(batch.people, batch.frames, 3, size, size))
-        if not self.cfg.expression_corrections:
-            corrections.dS = torch.zeros_like(corrections.dS)
-        if not self.cfg.dynamic_albedo:
-            corrections.dR = torch.zeros_like(corrections.dR)
+        corrections = ablate(self.modelnet(x.view(batch.people, batch.frames, 3, size, size)), self.cfg)
         return params, corrections
 
     def losses(self, batch: Batch, params: TrackParams, c: Corrections, with_reg: bool) -> dict[str, torch.Tensor]:
-        n = batch.frames
-        per_frame = lambda t: t.repeat_interleave(n, dim=0)  # noqa: E731  person -> frames
-        shape = self.region.shape(params.w, per_frame(c.dS0), per_frame(c.dS))
-        albedo = self.region.albedo(params.w, per_frame(c.dR0), per_frame(c.dR), mean_albedo=self.mean_albedo)
-        rotation = R.euler_to_matrix(params.euler)
-        size = self.cfg.input_size
-        out = R.render(
-            shape, self.region.triangles.long(), self.corner_uv, albedo, params.gamma, rotation, params.translation,
-            batch.focal, batch.principal[:, 0], batch.principal[:, 1], size, size,
-            parsing_texture=self.data.parsing_face if self.cfg.parsing_loss else None,
+        p = render_prediction(
+            self.region, self.corner_uv, batch, params, c, self.mean_albedo, self.cfg.input_size,
+            parsing_texture=self.synthetic.parsing_face if self.cfg.parsing_loss else None,
         )
+        shape, out, landmarks = p.shape, p.out, p.landmarks
         images = batch.images.permute(0, 2, 3, 1)
-        landmarks, _ = R.project(self.region.landmarks(shape), rotation, params.translation, batch.focal, batch.principal[:, 0], batch.principal[:, 1])
         terms = {
             "ph": L.photometric_loss(images, out.image, out.mask) + L.gradient_loss(images, out.image, out.mask),
             "lm": L.landmark_loss(batch.landmarks, landmarks),
@@ -164,7 +158,7 @@ class Trainer:
         if self.cfg.gradient_loss and self.cfg.expression_corrections:
             # S_i + F(A_i dS_i) for every blendshape of every person: [P, 53, Vf, 3].
             corrected = self.region.neutral + self.region.blendshapes(c.dS)
-            terms["bg"] = L.blendshape_gradient_loss(self.gradient_op, self.template_shapes[None].expand_as(corrected), corrected)
+            terms["bg"] = self.gradient_loss(corrected)
         if with_reg:
             terms["reg"] = L.regularization_loss(params.w, params.gamma)
         # Per-image averages keep the paper's weights meaningful at any batch size.
@@ -193,15 +187,13 @@ class Trainer:
     def predict_model_only(self, batch: Batch) -> tuple[None, Corrections]:
         size = self.cfg.input_size
         x = self.normalise(batch.images)
-        corrections = self.modelnet(x.view(batch.people, batch.frames, 3, size, size))
-        if not self.cfg.expression_corrections:
-            corrections.dS = torch.zeros_like(corrections.dS)
-        if not self.cfg.dynamic_albedo:
-            corrections.dR = torch.zeros_like(corrections.dR)
-        return None, corrections
+        return None, ablate(self.modelnet(x.view(batch.people, batch.frames, 3, size, size)), self.cfg)
 
     def run(self, log_every: int = 10) -> None:
         torch.set_num_threads(self.cfg.threads)
+        # Denormal floats in the synthetic people's maps slow on-the-fly batches ~20x
+        # (dataset._worker); flushing them to zero changes values below 1e-38 only.
+        torch.set_flush_denormal(True)
         self.out.mkdir(parents=True, exist_ok=True)
         log = (self.out / "log.jsonl").open("a")
         last_save = time.time()
@@ -225,6 +217,52 @@ class Trainer:
         self.save()
 
 
+def normalise(images: torch.Tensor) -> torch.Tensor:
+    """The networks' input normalisation (the manifest's), images [B, 3, H, W] in [0, 1]."""
+    mean = torch.tensor(IMAGE_MEAN).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGE_STD).view(1, 3, 1, 1)
+    return (images - mean) / std
+
+
+def ablate(corrections: Corrections, cfg: TrainConfig) -> Corrections:
+    """Zeroes the corrections an ablation row leaves out (dS_i for row A, dR_i before row C),
+    the same in training and evaluation."""
+    if not cfg.expression_corrections:
+        corrections.dS = torch.zeros_like(corrections.dS)
+    if not cfg.dynamic_albedo:
+        corrections.dR = torch.zeros_like(corrections.dR)
+    return corrections
+
+
+@dataclass
+class Prediction:
+    shape: torch.Tensor  # [P*N, Vf, 3] equation (2), model space
+    albedo: torch.Tensor  # [P*N, 3, S, S] equation (3) on the face layer
+    rotation: torch.Tensor  # [P*N, 3, 3]
+    landmarks: torch.Tensor  # [P*N, 68, 2] projected, pixels
+    out: R.RenderOutput
+
+
+def render_prediction(
+    region: FaceModel, corner_uv: torch.Tensor, batch: Batch, params: TrackParams, c: Corrections,
+    mean_albedo: torch.Tensor, size: int, parsing_texture: torch.Tensor | None = None,
+) -> Prediction:
+    """Equations (2) and (3) with the predicted corrections (one set per person, applied to
+    the person's N frames without copying them), rendered with the predicted pose and light
+    and the batch's known camera: what the training losses and the evaluation compare with
+    the images."""
+    shape = region.shape(params.w, c.dS0, c.dS)
+    albedo = region.albedo(params.w, c.dR0, c.dR, mean_albedo=mean_albedo)
+    rotation = R.euler_to_matrix(params.euler)
+    cx, cy = batch.principal[:, 0], batch.principal[:, 1]
+    out = R.render(
+        shape, region.triangles.long(), corner_uv, albedo, params.gamma, rotation, params.translation,
+        batch.focal, cx, cy, size, size, parsing_texture=parsing_texture,
+    )
+    landmarks, _ = R.project(region.landmarks(shape), rotation, params.translation, batch.focal, cx, cy)
+    return Prediction(shape, albedo, rotation, landmarks, out)
+
+
 def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True)
@@ -235,6 +273,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
         parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(defaults, name))
     for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
         parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")
+    parser.add_argument("--data", type=str, default=None, help="cache directory written by `python -m likeness_train.dataset`")
     args = vars(parser.parse_args(argv))
     out = args.pop("out")
     return TrainConfig(**args), out

@@ -124,3 +124,17 @@ def test_gradients_match_finite_differences():
     lm = torch.rand(1, 68, 2, dtype=torch.float64)
     pred = torch.rand(1, 68, 2, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda p: L.landmark_loss(lm, p), (pred,))
+
+
+def test_supported_gradient_loss_equals_the_dense_one():
+    verts, tris = _grid_mesh(6)
+    verts = verts + 0.1 * torch.randn_like(verts)
+    template = torch.stack([verts + 0.2 * torch.randn_like(verts) for _ in range(4)])
+    support = torch.rand(4, verts.shape[0]) < 0.3
+    delta = 0.1 * torch.randn(2, 4, verts.shape[0], 3, dtype=torch.float64) * support[None, :, :, None]
+    corrected = template[None] + delta
+    fast = L.SupportedGradientLoss(verts, tris, template, support)
+    op = L.GradientOperator.for_rest(verts, tris)
+    dense = sum(L.blendshape_gradient_loss(op, template, corrected[p]) for p in range(2))
+    assert fast(corrected).item() == pytest.approx(dense.item(), rel=1e-9)
+    assert dense.item() > 0

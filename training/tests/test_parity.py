@@ -154,3 +154,19 @@ def test_gradients_reach_the_maps_only_inside_the_masks(face_region_model):
     with torch.no_grad():
         fd = m.shape(w, None, e) - m.shape(w)
     assert abs((fd * target).sum() - (dS.grad * e).sum()) < 1e-2 * (fd * target).abs().sum()
+
+
+def test_per_person_corrections_equal_per_image_ones(face_region_model):
+    """Equations (2) and (3) with per-person maps equal the same maps repeated per image."""
+    g = torch.Generator().manual_seed(3)
+    region = face_region_model
+    w = torch.rand(6, 53, generator=g) * (torch.rand(6, 53, generator=g) < 0.2)
+    dS0 = 0.1 * torch.randn(2, 3, 128, 128, generator=g)
+    dS = 0.1 * torch.randn(2, 53, 3, 128, 128, generator=g)
+    per_image = lambda t: t.repeat_interleave(3, dim=0)  # noqa: E731
+    a = region.shape(w, dS0, dS)
+    b = region.shape(w, per_image(dS0), per_image(dS))
+    assert torch.allclose(a, b, atol=1e-5)
+    ra = region.albedo(w, dS0, dS)
+    rb = region.albedo(w, per_image(dS0), per_image(dS))
+    assert torch.allclose(ra, rb, atol=1e-5)

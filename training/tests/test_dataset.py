@@ -1,0 +1,79 @@
+"""The pre-rendered cache returns the batches `SyntheticData` renders, resumes, and feeds
+the trainer."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from likeness_train.data import SyntheticData
+from likeness_train.dataset import CacheSpec, CachedData, estimate_bytes, shard_path, write_cache
+from likeness_train.train import TrainConfig, Trainer
+
+SPEC = dict(seed=1, batches=3, people_per_batch=1, frames=2, image_size=128, batches_per_shard=2)
+
+
+@pytest.fixture(scope="module")
+def synthetic(face_model, face_region_model):
+    return SyntheticData(face_model, face_region_model, seed=1, image_size=128, frames=2)
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("cache")
+    # 3 batches in shards of 2: a full shard and a partial last one.
+    assert write_cache(directory, CacheSpec(**SPEC), workers=1) == 2
+    return directory
+
+
+def test_cached_batch_equals_rendered_batch(cache, synthetic):
+    data = CachedData(cache, fallback=synthetic, truth=True)
+    for index in (0, 2):
+        got, want = data.batch(index, 1), synthetic.batch(index, 1)
+        assert (got.images - want.images).abs().max() <= 1 / 255 + 1e-6
+        assert (got.landmarks - want.landmarks).abs().max() <= 1e-4
+        for key in ("weights", "euler", "translation", "gamma", "focal", "principal", "identity_coeffs", "dS", "dR0", "dR"):
+            assert torch.allclose(getattr(got, key), getattr(want, key), atol=1e-6), key
+        # Recomputed on the face region instead of selected from the full head.
+        assert (got.vertices - want.vertices).abs().max() <= 1e-4
+        # Parsing: the stored labels are the argmax; coverage is exact and only bilinear
+        # label borders (well under 1 % of the pixels) were soft.
+        covered = want.parsing.sum(-1) > 0.5
+        assert torch.equal(got.parsing.sum(-1) > 0.5, covered)
+        assert torch.equal(got.parsing.argmax(-1)[covered], want.parsing.argmax(-1)[covered])
+        soft = (got.parsing - want.parsing).abs().amax(-1) > 1e-3
+        assert soft.float().mean() < 0.01
+    assert (got.index, got.people, got.frames) == (2, 1, 2)
+
+
+def test_cache_resumes_and_falls_back(cache, synthetic, capsys):
+    before = shard_path(cache, 0).stat().st_mtime_ns
+    shard_path(cache, 1).unlink()
+    (cache / ".shard-00001.npz.123.tmp").write_bytes(b"half a shard")  # an interrupted write
+    data = CachedData(cache, fallback=synthetic)
+    # A missing shard (still rendering, or deleted) is rendered on the fly.
+    assert torch.equal(data.batch(2, 1).images, synthetic.batch(2, 1).images)
+    assert write_cache(cache, CacheSpec(**SPEC), workers=1) == 1
+    assert shard_path(cache, 0).stat().st_mtime_ns == before
+    assert data.batch(3, 1).images.shape == (2, 3, 128, 128)  # beyond the cache: rendered
+    with pytest.raises(ValueError):
+        data.batch(0, 2)  # the cache has 1 person per batch
+    with pytest.raises(SystemExit):
+        write_cache(cache, CacheSpec(**{**SPEC, "frames": 4}), workers=1)
+
+
+def test_trainer_reads_the_cache(cache, tmp_path):
+    config = TrainConfig(people_per_batch=1, frames=2, stage1_steps=1, stage2_steps=0, track_width=0.25, model_width=0.25, data=str(cache))
+    trainer = Trainer(config, tmp_path / "run")
+    assert isinstance(trainer.data, CachedData)
+    values = trainer.train_step()
+    assert all(math.isfinite(v) for v in values.values())
+
+
+def test_disk_estimate():
+    est = estimate_bytes(4, 4, 128)
+    # 16 images: 3 bytes of colour + 1 byte of parsing label per pixel, ~1 MB per batch.
+    assert est["total"] == pytest.approx(1.07e6, rel=0.01)
+    assert est["parsing_float16_soft"] / est["parsing_labels"] == 18
+    assert np.isclose(est["total"] * 5000 / 1e9, 5.35, rtol=0.01)
