@@ -78,7 +78,14 @@ class SyntheticData:
         parsing = torch.from_numpy(np.asarray(fixture.parsing_map)).long()  # [L, h, w]
         k = len(fixture.parsing_labels)
         onehot = F.one_hot(parsing, k).permute(0, 3, 1, 2).float()  # [L, K, h, w]
-        self.parsing_atlas = torch.cat(list(onehot), dim=-1)[None]  # [1, K, h, L*w]
+        # The prediction is rendered on the face region only, so the target parsing image
+        # labels only what that region can cover: other parts (back of the head, mouth
+        # interior, eyeballs) parse as nothing. Otherwise their pixels would be a floor of
+        # L_pa that no prediction can reduce, and its gradient would pull the face outline
+        # over the neck and the back of the head.
+        target = onehot.clone()
+        target[1:] = 0
+        self.parsing_atlas = torch.cat(list(target), dim=-1)[None]  # [1, K, h, L*w]
         # The face layer's parsing map T for rendering predictions on the face region.
         self.parsing_face = onehot[0][None]
         self.labels = k
