@@ -178,18 +178,8 @@ fn shape_delta(k: usize, p: Vec3) -> Vec3 {
     }
 }
 
-/// Area-weighted vertex normals of a triangle mesh.
-pub fn vertex_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
-    let mut normals = vec![Vec3::ZERO; positions.len()];
-    for t in triangles {
-        let [a, b, c] = t.map(|i| positions[i as usize]);
-        let n = (b - a).cross(c - a);
-        for &i in t {
-            normals[i as usize] += n;
-        }
-    }
-    normals.iter().map(|n| n.normalize_or(Vec3::Y)).collect()
-}
+/// Area-weighted vertex normals: the face crate's definition.
+pub use face::geometry::vertex_normals;
 
 /// Two checkerboard layers of `size x size` with `checks` squares per side: layer 0 warm,
 /// layer 1 cool. Layer 0 has a yellow band along its top quarter of rows (the tile's v = 1

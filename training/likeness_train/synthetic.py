@@ -34,6 +34,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from . import render as R
 from .face import CORRECTION_SIZE, NUM_BLENDSHAPES, NUM_IDENTITY, FaceModel
 
 # --- configuration -------------------------------------------------------------------
@@ -129,23 +130,9 @@ _C0, _C1, _C2 = 1 / math.sqrt(4 * math.pi), math.sqrt(3) / math.sqrt(4 * math.pi
 
 
 def sh_basis(n: np.ndarray) -> np.ndarray:
-    """The 9 basis values (constants included) at unit normals [..., 3] -> [..., 9]."""
-    x, y, z = n[..., 0], n[..., 1], n[..., 2]
-    a1c1, a2c2 = _A1 * _C1, _A2 * _C2
-    return np.stack(
-        [
-            np.full_like(x, _A0 * _C0),
-            -a1c1 * y,
-            a1c1 * z,
-            -a1c1 * x,
-            a2c2 * x * y,
-            -a2c2 * y * z,
-            a2c2 * 0.5 / math.sqrt(3) * (3 * z * z - 1),
-            -a2c2 * x * z,
-            a2c2 * 0.5 * (x * x - y * y),
-        ],
-        axis=-1,
-    )
+    """The 9 basis values (constants included) at unit normals [..., 3] -> [..., 9]; the
+    renderer's definition, on numpy arrays."""
+    return R.sh_basis(torch.as_tensor(np.asarray(n, dtype=np.float64))).numpy()
 
 
 def irradiance(normals: np.ndarray, gamma: np.ndarray) -> np.ndarray:
@@ -543,13 +530,10 @@ class SyntheticPeople:
 
 
 def euler_to_matrix(euler: np.ndarray) -> np.ndarray:
-    """R = Rz(roll) Ry(yaw) Rx(pitch) for (yaw, pitch, roll) radians (face/src/camera.rs)."""
-    yaw, pitch, roll = (float(a) for a in euler)
-    cy, sy, cp, sp, cr, sr = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
-    rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
-    return rz @ ry @ rx
+    """R = Rz(roll) Ry(yaw) Rx(pitch) for (yaw, pitch, roll) radians (face/src/camera.rs);
+    the renderer's definition, on numpy arrays."""
+    e = torch.as_tensor(np.asarray(euler, dtype=np.float64)).reshape(1, 3)
+    return R.euler_to_matrix(e)[0].numpy()
 
 
 # --- after rendering -------------------------------------------------------------------
