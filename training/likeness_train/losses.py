@@ -53,8 +53,16 @@ def landmark_loss(landmarks: torch.Tensor, predicted: torch.Tensor) -> torch.Ten
 
 
 def parsing_loss(parsing: torch.Tensor, predicted: torch.Tensor) -> torch.Tensor:
-    """L_pa = sum_n ||I_pa - I^_pa||_2 over soft (one-hot) parsing images [B, H, W, K]."""
-    return torch.sqrt((parsing - predicted).pow(2).flatten(1).sum(1) + 1e-12).sum()
+    """L_pa = sum_n ||I_pa - I^_pa||_2 over soft (one-hot) parsing images [B, H, W, K],
+    each norm divided by sqrt(H W).
+
+    The paper does not say how its parsing images are scaled. An unscaled l2 norm grows
+    with the image side (at 128 px it is ~50x the per-pixel photometric term, and with the
+    appendix's weight it drowned the landmark term in our probes); divided by sqrt(H W) it
+    is the RMS error per pixel, resolution independent like L_ph.
+    """
+    pixels = parsing.shape[1] * parsing.shape[2]
+    return (torch.sqrt((parsing - predicted).pow(2).flatten(1).sum(1) + 1e-12) / pixels**0.5).sum()
 
 
 def smoothness_loss(dS0_vertices: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
