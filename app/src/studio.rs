@@ -55,6 +55,9 @@ impl Default for StudioState {
 struct Viewport {
     face: FaceRenderer,
     target: Option<(wgpu::Texture, egui::TextureId, [u32; 2])>,
+    /// The blendshape whose mask A_i is on the GPU, so it is uploaded once per selection,
+    /// not every frame.
+    uploaded_mask: Option<usize>,
 }
 
 pub struct StudioApp {
@@ -84,7 +87,13 @@ impl StudioApp {
                 &app.scene.mesh,
                 &app.scene.textures,
             ) {
-                Ok(face) => app.viewport = Some(Viewport { face, target: None }),
+                Ok(face) => {
+                    app.viewport = Some(Viewport {
+                        face,
+                        target: None,
+                        uploaded_mask: None,
+                    })
+                }
                 Err(e) => app.state.error = Some(format!("3D view unavailable: {e}")),
             },
             None => {
@@ -199,11 +208,15 @@ impl StudioApp {
             self.state.error = Some(e.to_string());
         }
         if let StudioView::Mask(i) = self.state.view
-            && let Err(e) = viewport
+            && viewport.uploaded_mask != Some(i)
+        {
+            match viewport
                 .face
                 .set_uv_mask(&rs.queue, Some(self.scene.mask(i)))
-        {
-            self.state.error = Some(e.to_string());
+            {
+                Ok(()) => viewport.uploaded_mask = Some(i),
+                Err(e) => self.state.error = Some(e.to_string()),
+            }
         }
         // (Re)create the target texture when the view size changes.
         if viewport.target.as_ref().is_none_or(|t| t.2 != size) {
