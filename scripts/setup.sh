@@ -9,6 +9,10 @@ for pkg in mesa-vulkan-drivers libvulkan1 \
            libx11-6 libxkbcommon0 libxkbcommon-x11-0 libxcursor1 libxrandr2 libxi6 libwayland-client0 libegl1; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || need+=("$pkg")
 done
+# The training tests make a Python venv; Debian's own python3 needs python3-venv for that.
+if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then
+  need+=(python3-venv python3-pip)
+fi
 if [ "${#need[@]}" -gt 0 ]; then
   echo "setup: installing ${need[*]}"
   SUDO=""
