@@ -120,6 +120,7 @@ def main(argv: list[str] | None = None) -> None:
         "step": ckpt.get("step"),
         "stage": ckpt.get("stage"),
         "commit": ckpt.get("commit"),
+        "training_elapsed_s": ckpt.get("elapsed_s"),
         "config": {k: v for k, v in nets.config.items() if k != "blendshape_names"},
         **results,
         "elapsed_s": round(time.time() - t0, 1),

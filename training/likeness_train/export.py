@@ -1,15 +1,21 @@
 """ONNX export of TrackNet and ModelNet, with the manifest the Rust inference reads.
 
-`python -m likeness_train.export --checkpoint CKPT --out assets/models` writes
-`track_net.onnx` ([B,3,H,W] -> w, euler, translation, gamma), `model_net.onnx`
-([N,3,H,W] -> dS0, dS, dR0, dR for one person) and `manifest.json`.
+`python -m likeness_train.export --checkpoint CKPT --out assets/models [--metrics
+results.json]` writes `track_net.onnx` ([B,3,H,W] -> w, euler, translation, gamma),
+`model_net.onnx` ([N,3,H,W] -> dS0, dS, dR0, dR for one person), `mean_albedo.safetensors`
+(the trained R_0^t of equation (3), float16 [3,512,512] under `mean_albedo_face`: inference
+must add dR_0 and dR_i to this, not to the procedural R_0 it started from) and
+`manifest.json`. It checks ONNX Runtime against PyTorch and prints the batch-1 ONNX
+Runtime latency of each model with 1 and 2 threads (median of 30 runs after 5 warm-ups).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
+import time
 import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -40,8 +46,30 @@ class Manifest:
         }
     )
     camera: dict = field(default_factory=dict)
+    mean_albedo: dict = field(
+        default_factory=lambda: {"file": "mean_albedo.safetensors", "tensor": "mean_albedo_face", "shape": [3, 512, 512], "dtype": "float16", "what": "trained R_0^t (face layer, row 0 at v = 1)"}
+    )
     training_commit: str = ""
+    training: dict = field(default_factory=dict)
+    parity_max_abs_diff: dict = field(default_factory=dict)
+    latency_ms: dict = field(default_factory=dict)
     metrics: dict = field(default_factory=dict)
+
+
+def camera_assumptions() -> dict:
+    """What the training images assumed about the camera, so inference can build the same
+    intrinsics for a crop (TrackNet predicts translation for a known focal length)."""
+    from .synthetic import SyntheticConfig
+
+    c = SyntheticConfig()
+    lo, hi = c.fov_deg_range
+    return {
+        "fov_deg_range": [lo, hi],
+        "nominal_fov_deg": 0.5 * (lo + hi),
+        "principal_point": "crop centre (training jitter 1% of the size)",
+        "face_fill": c.face_fill,
+        "units": "translation in cm, camera looks down -z (OpenGL convention)",
+    }
 
 
 class _TrackWrapper(nn.Module):
@@ -122,6 +150,41 @@ def parity(track: TrackNet, model: ModelNet, track_path: Path, model_path: Path,
     return result
 
 
+def latency(track_path: Path, model_path: Path, input_size: int, frames: int = 4, runs: int = 30) -> dict:
+    """Median ONNX Runtime latency in ms at batch 1 (TrackNet: one image; ModelNet: one
+    person's N frames), with 1 and 2 intra-op threads."""
+    import onnxruntime as ort
+
+    result: dict = {}
+    inputs = {"track_net": np.random.default_rng(0).random((1, 3, input_size, input_size), dtype=np.float32), "model_net": np.random.default_rng(1).random((frames, 3, input_size, input_size), dtype=np.float32)}
+    for name, path in (("track_net", track_path), ("model_net", model_path)):
+        for threads in (1, 2):
+            options = ort.SessionOptions()
+            options.intra_op_num_threads = threads
+            options.inter_op_num_threads = 1
+            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+            feed = {"images": inputs[name]}
+            for _ in range(5):
+                session.run(None, feed)
+            times = []
+            for _ in range(runs):
+                t0 = time.perf_counter()
+                session.run(None, feed)
+                times.append((time.perf_counter() - t0) * 1e3)
+            result[f"{name}_{threads}_thread{'s' if threads > 1 else ''}"] = round(statistics.median(times), 2)
+    return result
+
+
+def save_mean_albedo(mean_albedo: torch.Tensor, out_dir: Path) -> Path:
+    from safetensors.torch import save_file
+
+    path = out_dir / "mean_albedo.safetensors"
+    tmp = path.with_suffix(".tmp")
+    save_file({"mean_albedo_face": mean_albedo.detach().to(torch.float16).contiguous()}, str(tmp), metadata={"what": "trained R_0^t", "layout": "[3,512,512] RGB, row 0 at v = 1"})
+    tmp.replace(path)
+    return path
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--checkpoint", type=Path, required=True)
@@ -132,18 +195,30 @@ def main(argv: list[str] | None = None) -> None:
     cfg, ckpt, track, model = nets.config, nets.checkpoint, nets.track, nets.model
     track_path, model_path = export_onnx(track, model, cfg["input_size"], args.out)
     diffs = parity(track, model, track_path, model_path, cfg["input_size"])
+    if nets.mean_albedo is None:
+        raise SystemExit(f"{args.checkpoint} has no trained mean albedo R_0^t; it is not a training checkpoint")
+    albedo_path = save_mean_albedo(nets.mean_albedo, args.out)
+    timings = latency(track_path, model_path, cfg["input_size"], frames=cfg.get("frames", 4))
     manifest = Manifest(
         input_size=cfg["input_size"],
         track_width=cfg["track_width"],
         model_width=cfg["model_width"],
         blendshape_names=list(cfg["blendshape_names"]),
-        camera=cfg.get("camera", {}),
+        camera=camera_assumptions(),
         training_commit=ckpt.get("commit", git_commit()),
+        training={"step": ckpt.get("step"), "stage": ckpt.get("stage"), "elapsed_s": round(ckpt.get("elapsed_s", 0.0), 1), "config": {k: v for k, v in cfg.items() if k != "blendshape_names"}},
+        parity_max_abs_diff=diffs,
+        latency_ms=timings,
         metrics=json.loads(args.metrics.read_text())["metrics"] if args.metrics else ckpt.get("metrics", {}),
     )
     (args.out / "manifest.json").write_text(json.dumps(asdict(manifest), indent=2) + "\n")
-    print(f"wrote {track_path} ({track_path.stat().st_size / 1e6:.1f} MB), {model_path} ({model_path.stat().st_size / 1e6:.1f} MB)")
+    for path in (track_path, model_path, albedo_path):
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     print(f"ONNX Runtime vs PyTorch max abs difference: {diffs}")
+    print("ONNX Runtime latency at batch 1, median ms (ModelNet: one person's N frames):")
+    print("| model | 1 thread | 2 threads |\n|---|---|---|")
+    for name in ("track_net", "model_net"):
+        print(f"| {name} | {timings[name + '_1_thread']} | {timings[name + '_2_threads']} |")
 
 
 if __name__ == "__main__":

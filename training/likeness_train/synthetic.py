@@ -344,9 +344,11 @@ class SyntheticPeople:
             support = t * t * (3 - 2 * t)
             cap = c.max_correction_mouth_cm if _is_mouth(name) else c.max_correction_cm
             field = self._bumps(rng, a, int(rng.integers(2, 7)), (4.0, 12.0))
-            field = field / field.norm(dim=0).max().clamp_min(1e-9) * cap * rng.uniform(0.1, 0.7)
+            # sqrt of the summed squares: torch's `norm(dim=0)` over the 3 strided channels
+            # is ~80x slower here and was a third of a batch's time.
+            field = field / field.square().sum(0).max().sqrt().clamp_min(1e-9) * cap * rng.uniform(0.1, 0.7)
             d = (float(scale[i]) * self.delta_uv[i] + field) * support
-            peak = d.norm(dim=0).max().item()
+            peak = d.square().sum(0).max().sqrt().item()
             if peak > cap:
                 d = d * (cap / peak)
             out[i] = d

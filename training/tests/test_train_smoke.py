@@ -49,7 +49,18 @@ def test_smoke_training_resumes_and_exports(tmp_path, capsys):
     export_main(["--checkpoint", str(resumed.checkpoint_path), "--out", str(tmp_path / "models")])
     printed = capsys.readouterr().out
     assert "max abs difference" in printed
-    assert (tmp_path / "models" / "manifest.json").exists()
+    manifest = json.loads((tmp_path / "models" / "manifest.json").read_text())
+    assert manifest["parity_max_abs_diff"]["track_net"] < 1e-4 and manifest["parity_max_abs_diff"]["model_net"] < 1e-4
+    assert manifest["training"]["step"] == 3
+    assert set(manifest["latency_ms"]) == {"track_net_1_thread", "track_net_2_threads", "model_net_1_thread", "model_net_2_threads"}
+    assert all(v > 0 for v in manifest["latency_ms"].values())
+    # The trained R_0^t round-trips through the float16 file (half precision: 1e-3 at 1).
+    from safetensors.torch import load_file
+
+    albedo = load_file(str(tmp_path / "models" / manifest["mean_albedo"]["file"]))["mean_albedo_face"]
+    assert albedo.dtype == torch.float16 and list(albedo.shape) == manifest["mean_albedo"]["shape"]
+    assert torch.allclose(albedo.float(), resumed.mean_albedo.detach(), atol=1e-3)
+    assert not torch.equal(resumed.mean_albedo.detach(), resumed.region.mean_albedo_face), "R_0^t was trained"
 
 
 def test_ablation_flags_switch_terms_off(tmp_path):

@@ -1,0 +1,143 @@
+"""The ablation study (paper, table 1; issue 3, item 6): rows A -> B -> C -> D -> final, each
+trained by the same training command with flags, evaluated on the same held-out people.
+
+`python -m likeness_train.ablation --runs runs/ablation --data .cache/data-s1-128
+--stage1-steps 800 --stage2-steps 200 --out results/ablation.md [--full runs/full]`
+
+For each row it runs `python -m likeness_train.train --out RUNS/ROW FLAGS...` (which resumes
+an interrupted row from its checkpoint), then `python -m likeness_train.evaluate` into
+`RUNS/ROW/results.json` (skipped when that file is newer than the checkpoint), and writes the
+table. `--full DIR` adds the full training's row (its `results.json`) below the ablation rows.
+
+The rows, as the paper's (B and C use every loss but the parsing and gradient losses):
+- A, "3DMM prior": ModelNet's identity-level corrections dS_0 and dR_0 only. Our template has
+  no learned identity regressor, so dS_0 is what fits a person's shape here;
+- B, A + blendshape corrections dS_i;
+- C, B + dynamic albedo corrections dR_i;
+- D, C + parsing loss;
+- final, D + blendshape gradient loss.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .evaluate import METRIC_KEYS
+
+ROWS: dict[str, tuple[str, list[str]]] = {
+    "A": ("3DMM prior (identity corrections dS_0, dR_0 only)", ["--no-expression-corrections", "--no-dynamic-albedo", "--no-parsing-loss", "--no-gradient-loss"]),
+    "B": ("A + blendshape corrections dS_i", ["--no-dynamic-albedo", "--no-parsing-loss", "--no-gradient-loss"]),
+    "C": ("B + dynamic albedo corrections dR_i", ["--no-parsing-loss", "--no-gradient-loss"]),
+    "D": ("C + parsing loss", ["--no-gradient-loss"]),
+    "final": ("D + blendshape gradient loss", []),
+}
+
+# Column headings: what each metric is and which way is better.
+HEADINGS = {
+    "vertex_error_mm": "3D vertex error (mm) ↓",
+    "landmark_nme": "landmark NME ↓",
+    "photometric_error": "photometric error ↓",
+    "expression_mae": "w MAE ↓",
+    "personalization_recovery": "personalization recovery ↓ (1 = template)",
+    "albedo_error": "albedo error ↓",
+}
+
+
+def _run(args: list[str]) -> None:
+    print("$ " + " ".join(args), flush=True)
+    subprocess.run(args, check=True)
+
+
+def train_and_evaluate(row: str, runs: Path, common: list[str], people: int) -> dict:
+    out = runs / row
+    python = sys.executable
+    _run([python, "-m", "likeness_train.train", "--out", str(out), *common, *ROWS[row][1]])
+    checkpoint, results = out / "checkpoint.pt", out / "results.json"
+    if not results.exists() or results.stat().st_mtime < checkpoint.stat().st_mtime:
+        _run([python, "-m", "likeness_train.evaluate", "--checkpoint", str(checkpoint), "--out", str(results), "--people", str(people)])
+    return json.loads(results.read_text())
+
+
+def table(rows: list[tuple[str, str, dict]]) -> str:
+    """Markdown table: one line per (row, description, results.json)."""
+    head = "| row | what | steps | wall time | " + " | ".join(HEADINGS[k] for k in METRIC_KEYS) + " |"
+    rule = "|" + "---|" * (4 + len(METRIC_KEYS))
+    lines = [head, rule]
+    for name, what, r in rows:
+        m = r["metrics"]
+        cfg = r.get("config", {})
+        steps = f"{cfg.get('stage1_steps', '?')} + {cfg.get('stage2_steps', '?')}"
+        wall = r.get("training_elapsed_s")
+        wall_text = f"{wall / 60:.0f} min" if isinstance(wall, (int, float)) else "?"
+        lines.append(f"| {name} | {what} | {steps} | {wall_text} | " + " | ".join(_fmt(k, m[k]) for k in METRIC_KEYS) + " |")
+    return "\n".join(lines)
+
+
+def _fmt(key: str, value: float) -> str:
+    if key == "landmark_nme":
+        return f"{100 * value:.2f} %"
+    if key in ("vertex_error_mm",):
+        return f"{value:.3f}"
+    return f"{value:.4f}"
+
+
+BEGIN, END = "<!-- ablation table: written by `python -m likeness_train.ablation` -->", "<!-- end of ablation table -->"
+
+
+def splice(document: str, text: str) -> str:
+    """Puts the table between the markers of an existing document (the discussion around it
+    is kept) or makes a new document of it."""
+    block = f"{BEGIN}\n{text}\n{END}"
+    if BEGIN in document and END in document:
+        before, rest = document.split(BEGIN, 1)
+        return before + block + rest.split(END, 1)[1]
+    return f"# Ablation\n\n{block}\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=Path, default=Path("runs/ablation"))
+    parser.add_argument("--out", type=Path, default=Path("results/ablation.md"))
+    parser.add_argument("--rows", default=",".join(ROWS), help="comma-separated subset of " + ",".join(ROWS))
+    parser.add_argument("--stage1-steps", type=int, default=800)
+    parser.add_argument("--stage2-steps", type=int, default=200)
+    parser.add_argument("--data", type=str, default=None, help="cache directory (see dataset.py)")
+    parser.add_argument("--people", type=int, default=40, help="held-out people to evaluate on")
+    parser.add_argument("--full", type=Path, default=None, help="directory of the full training run (with results.json) to add as the last row")
+    args = parser.parse_args(argv)
+    rows = [r for r in args.rows.split(",") if r]
+    unknown = [r for r in rows if r not in ROWS]
+    if unknown:
+        raise SystemExit(f"unknown ablation row(s) {unknown}; known: {list(ROWS)}")
+    common = ["--stage1-steps", str(args.stage1_steps), "--stage2-steps", str(args.stage2_steps)]
+    if args.data:
+        common += ["--data", args.data]
+    t0 = time.time()
+    collected = []
+    for row in rows:
+        results = train_and_evaluate(row, args.runs, common, args.people)
+        collected.append((row, ROWS[row][0], results))
+    if args.full is not None:
+        results = json.loads((args.full / "results.json").read_text())
+        collected.append(("full", "final, the full training (the shipped models)", results))
+    baseline = collected[-1][2]["baseline"]["metrics"] if collected else None
+    text = table(collected)
+    if baseline is not None:
+        text += "\n\nTemplate baseline (the last row's TrackNet with every ModelNet correction zeroed): " + ", ".join(
+            f"{HEADINGS[k].split(' ↓')[0]} {_fmt(k, baseline[k])}" for k in METRIC_KEYS
+        )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".tmp")
+    tmp.write_text(splice(args.out.read_text() if args.out.exists() else "", text))
+    tmp.replace(args.out)
+    print(text)
+    print(f"wrote {args.out} ({time.time() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

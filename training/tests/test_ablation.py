@@ -1,0 +1,30 @@
+"""The ablation driver: the rows switch exactly the paper's components, and the table is
+spliced into the document without losing the discussion around it."""
+
+from likeness_train.ablation import BEGIN, END, ROWS, splice, table
+from likeness_train.evaluate import METRIC_KEYS
+from likeness_train.train import config_from_args
+
+
+def test_rows_add_one_component_each():
+    cumulative = ["expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"]
+    for k, row in enumerate(ROWS):
+        config, _ = config_from_args(["--out", "x", *ROWS[row][1]])
+        on = [name for name in cumulative if getattr(config, name)]
+        assert on == cumulative[:k], (row, on)
+
+
+def _results(value):
+    return {"metrics": dict.fromkeys(METRIC_KEYS, value), "config": {"stage1_steps": 8, "stage2_steps": 2}, "training_elapsed_s": 120.0}
+
+
+def test_table_and_splice():
+    text = table([("A", "first", _results(0.5)), ("B", "second", _results(0.25))])
+    lines = text.splitlines()
+    assert len(lines) == 4 and lines[2].startswith("| A | first | 8 + 2 | 2 min |") and "50.00 %" in lines[2]
+    doc = splice("", text)
+    assert doc.startswith("# Ablation") and BEGIN in doc and END in doc
+    edited = doc.replace("# Ablation", "# Ablation\n\nDiscussion above.") + "\nDiscussion below.\n"
+    again = splice(edited, table([("A", "first", _results(0.1))]))
+    assert "Discussion above." in again and "Discussion below." in again
+    assert "| B |" not in again and "0.1000" in again
