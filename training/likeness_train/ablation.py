@@ -2,12 +2,14 @@
 trained by the same training command with flags, evaluated on the same held-out people.
 
 `python -m likeness_train.ablation --runs runs/ablation --data .cache/data-s1-128
---stage1-steps 800 --stage2-steps 200 --out results/ablation.md [--full runs/full]`
+--stage1-steps 800 --stage2-steps 200 --out results/ablation.md [--full results/full.json]`
 
 For each row it runs `python -m likeness_train.train --out RUNS/ROW FLAGS...` (which resumes
 an interrupted row from its checkpoint), then `python -m likeness_train.evaluate` into
 `RUNS/ROW/results.json` (skipped when that file is newer than the checkpoint), and writes the
-table. `--full DIR` adds the full training's row (its `results.json`) below the ablation rows.
+table. Each row's results are also kept in `results/ablation/ROW.json` (committed): a row whose
+stored results match the budget and flags is not trained again. `--full FILE` adds the full
+training's row (its evaluation `results.json`) below the ablation rows.
 
 The rows, as the paper's (B and C use every loss but the parsing and gradient losses):
 - A, "3DMM prior": ModelNet's identity-level corrections dS_0 and dR_0 only. Our template has
@@ -53,14 +55,34 @@ def _run(args: list[str]) -> None:
     subprocess.run(args, check=True)
 
 
-def train_and_evaluate(row: str, runs: Path, common: list[str], people: int) -> dict:
+def _matches(results: dict, stage1: int, stage2: int, row: str) -> bool:
+    """A stored row counts only if it was trained with this budget and this row's flags."""
+    from .train import config_from_args
+
+    cfg = results.get("config", {})
+    expected, _ = config_from_args(["--out", "x", "--stage1-steps", str(stage1), "--stage2-steps", str(stage2), *ROWS[row][1]])
+    keys = ("stage1_steps", "stage2_steps", "expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss", "input_size", "track_width", "model_width")
+    return all(cfg.get(k) == getattr(expected, k) for k in keys) and results.get("evaluation", {}).get("people") is not None
+
+
+def train_and_evaluate(row: str, runs: Path, common: list[str], people: int, stored: Path, stage1: int, stage2: int) -> dict:
+    """Trains and evaluates one row, or reuses its stored results (committed with the
+    repository, so a row survives the machine it was trained on)."""
+    if stored.exists():
+        results = json.loads(stored.read_text())
+        if _matches(results, stage1, stage2, row) and results["evaluation"]["people"] == people:
+            print(f"row {row}: using {stored}", flush=True)
+            return results
     out = runs / row
     python = sys.executable
     _run([python, "-m", "likeness_train.train", "--out", str(out), *common, *ROWS[row][1]])
     checkpoint, results = out / "checkpoint.pt", out / "results.json"
     if not results.exists() or results.stat().st_mtime < checkpoint.stat().st_mtime:
         _run([python, "-m", "likeness_train.evaluate", "--checkpoint", str(checkpoint), "--out", str(results), "--people", str(people)])
-    return json.loads(results.read_text())
+    text = results.read_text()
+    stored.parent.mkdir(parents=True, exist_ok=True)
+    stored.write_text(text)
+    return json.loads(text)
 
 
 def table(rows: list[tuple[str, str, dict]]) -> str:
@@ -108,7 +130,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--stage2-steps", type=int, default=200)
     parser.add_argument("--data", type=str, default=None, help="cache directory (see dataset.py)")
     parser.add_argument("--people", type=int, default=40, help="held-out people to evaluate on")
-    parser.add_argument("--full", type=Path, default=None, help="directory of the full training run (with results.json) to add as the last row")
+    parser.add_argument("--full", type=Path, default=None, help="results.json of the full training run, added as the last row")
     args = parser.parse_args(argv)
     rows = [r for r in args.rows.split(",") if r]
     unknown = [r for r in rows if r not in ROWS]
@@ -120,10 +142,11 @@ def main(argv: list[str] | None = None) -> None:
     t0 = time.time()
     collected = []
     for row in rows:
-        results = train_and_evaluate(row, args.runs, common, args.people)
+        stored = args.out.parent / "ablation" / f"{row}.json"
+        results = train_and_evaluate(row, args.runs, common, args.people, stored, args.stage1_steps, args.stage2_steps)
         collected.append((row, ROWS[row][0], results))
     if args.full is not None:
-        results = json.loads((args.full / "results.json").read_text())
+        results = json.loads(args.full.read_text())
         collected.append(("full", "final, the full training (the shipped models)", results))
     baseline = collected[-1][2]["baseline"]["metrics"] if collected else None
     text = table(collected)

@@ -96,6 +96,8 @@ def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int
             "name": "template",
             "what": "same TrackNet, ModelNet corrections dS_0, dS_i, dR_0, dR_i zeroed (template shape, trained R_0^t)",
             "metrics": result["template"],
+            # What predicting w = 0 everywhere scores: a TrackNet must beat this to track at all.
+            "zero_weights_expression_mae": float(torch.cat(w_true).abs().mean()),
         },
     }
 
@@ -131,6 +133,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'metric':<{width}}  personalized  template")
     for key in METRIC_KEYS:
         print(f"{key:<{width}}  {results['metrics'][key]:12.4f}  {results['baseline']['metrics'][key]:8.4f}")
+    print(f"expression_mae of w = 0 everywhere: {results['baseline']['zero_weights_expression_mae']:.4f}")
     print(f"wrote {args.out} ({results['elapsed_s']} s)")
 
 

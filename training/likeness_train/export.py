@@ -181,6 +181,7 @@ def save_mean_albedo(mean_albedo: torch.Tensor, out_dir: Path) -> Path:
     path = out_dir / "mean_albedo.safetensors"
     tmp = path.with_suffix(".tmp")
     save_file({"mean_albedo_face": mean_albedo.detach().to(torch.float16).contiguous()}, str(tmp), metadata={"what": "trained R_0^t", "layout": "[3,512,512] RGB, row 0 at v = 1"})
+    tmp.chmod(0o644)  # safetensors creates it owner-only; it is a shipped asset
     tmp.replace(path)
     return path
 

@@ -126,7 +126,10 @@ class SupportedGradientLoss:
     of the work (the dense form costs seconds per step on two cores).
     """
 
-    def __init__(self, rest: torch.Tensor, triangles: torch.Tensor, template_shapes: torch.Tensor, support: torch.Tensor):
+    def __init__(self, rest: torch.Tensor, triangles: torch.Tensor, template_shapes: torch.Tensor, support: torch.Tensor, reduction: str = "sum"):
+        if reduction not in ("sum", "shape_mean"):
+            raise ValueError(f"reduction {reduction!r}: use 'sum' (the paper's formula) or 'shape_mean'")
+        self.reduction = reduction
         op = GradientOperator.for_rest(rest, triangles)
         shape_idx, tri_idx = [], []
         for i in range(template_shapes.shape[0]):
@@ -137,6 +140,8 @@ class SupportedGradientLoss:
         self.corners = op.triangles[torch.cat(tri_idx)]  # [M, 3]
         self.rest_inverse = op.rest_inverse[torch.cat(tri_idx)]  # [M, 3, 3]
         self.template_gradients = self._gradients(template_shapes[None]).detach()
+        counts = torch.bincount(self.shape_idx, minlength=template_shapes.shape[0]).clamp_min(1)
+        self.per_triangle_scale = (1.0 / counts.to(rest.dtype))[self.shape_idx]  # for "shape_mean"
 
     def _gradients(self, shapes: torch.Tensor) -> torch.Tensor:
         v = shapes[:, self.shape_idx[:, None], self.corners]  # [P, M, 3 corners, 3 xyz]
@@ -148,8 +153,14 @@ class SupportedGradientLoss:
         return torch.einsum("pmij,mjk->pmik", frames, self.rest_inverse)
 
     def __call__(self, corrected_shapes: torch.Tensor) -> torch.Tensor:
-        """corrected_shapes [P, 53, V, 3] -> sum over people of L_bg."""
-        return (self._gradients(corrected_shapes) - self.template_gradients).pow(2).sum()
+        """corrected_shapes [P, 53, V, 3] -> sum over people of L_bg. With `shape_mean`, each
+        blendshape's squared norm is divided by its supported triangle count (a mean per
+        triangle, summed over blendshapes), which puts it on the per-element scale of the
+        image terms."""
+        per_triangle = (self._gradients(corrected_shapes) - self.template_gradients).pow(2).sum((-1, -2))  # [P, M]
+        if self.reduction == "shape_mean":
+            per_triangle = per_triangle * self.per_triangle_scale
+        return per_triangle.sum()
 
 
 def regularization_loss(w: torch.Tensor, gamma: torch.Tensor, lambda_gamma: float = LAMBDA_GAMMA) -> torch.Tensor:

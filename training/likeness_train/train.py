@@ -47,6 +47,7 @@ class TrainConfig:
     dynamic_albedo: bool = True  # dR_i (row C)
     parsing_loss: bool = True  # L_pa (row D)
     gradient_loss: bool = True  # L_bg (final row)
+    bg_reduction: str = "sum"  # "sum" (the paper's formula) or "shape_mean" (see losses.SupportedGradientLoss)
     weights: dict = field(default_factory=lambda: dict(L.PAPER_WEIGHTS))
     checkpoint_every_s: float = 300.0
     threads: int = 2
@@ -68,7 +69,7 @@ class Trainer:
         template_shapes = self.region.neutral + self.region.expression_deltas  # S_i [53, Vf, 3]
         with torch.no_grad():
             support = self.region.sample_uv(self.region.masks[None])[0].T > 0  # [53, Vf]: F(A_i) > 0
-        self.gradient_loss = L.SupportedGradientLoss(self.region.neutral, self.region.triangles.long(), template_shapes, support)
+        self.gradient_loss = L.SupportedGradientLoss(self.region.neutral, self.region.triangles.long(), template_shapes, support, reduction=config.bg_reduction)
         gamma_prior = torch.zeros(27)
         gamma_prior[[0, 9, 18]] = 0.7 / (torch.pi / (4 * torch.pi) ** 0.5)  # ambient 0.7
         self.track = TrackNet(width=config.track_width, gamma_prior=gamma_prior)
@@ -274,6 +275,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
         parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")
     parser.add_argument("--data", type=str, default=None, help="cache directory written by `python -m likeness_train.dataset`")
+    parser.add_argument("--bg-reduction", choices=("sum", "shape_mean"), default=defaults.bg_reduction)
     args = vars(parser.parse_args(argv))
     out = args.pop("out")
     return TrainConfig(**args), out

@@ -1,6 +1,8 @@
 """The ablation driver: the rows switch exactly the paper's components, and the table is
 spliced into the document without losing the discussion around it."""
 
+import pytest
+
 from likeness_train.ablation import BEGIN, END, ROWS, splice, table
 from likeness_train.evaluate import METRIC_KEYS
 from likeness_train.train import config_from_args
@@ -28,3 +30,28 @@ def test_table_and_splice():
     again = splice(edited, table([("A", "first", _results(0.1))]))
     assert "Discussion above." in again and "Discussion below." in again
     assert "| B |" not in again and "0.1000" in again
+
+
+def test_stored_rows_are_reused_only_for_the_same_budget_and_flags(tmp_path, monkeypatch):
+    import json
+    from dataclasses import asdict
+
+    import likeness_train.ablation as ablation
+
+    config, _ = config_from_args(["--out", "x", "--stage1-steps", "8", "--stage2-steps", "2", *ROWS["B"][1]])
+    stored = tmp_path / "B.json"
+    stored.write_text(json.dumps({"config": asdict(config), "evaluation": {"people": 3}, "metrics": {}}))
+
+    class Trains(Exception):
+        pass
+
+    def refuse(args):
+        raise Trains(args)
+
+    monkeypatch.setattr(ablation, "_run", refuse)
+    assert ablation.train_and_evaluate("B", tmp_path / "runs", [], 3, stored, 8, 2)["evaluation"]["people"] == 3
+    # Another budget, another row's flags or another evaluation size must train again.
+    for row, people, s1, s2 in (("B", 3, 9, 2), ("C", 3, 8, 2), ("B", 4, 8, 2)):
+        with pytest.raises(Trains) as trained:
+            ablation.train_and_evaluate(row, tmp_path / "runs", [], people, stored, s1, s2)
+        assert "likeness_train.train" in trained.value.args[0]

@@ -5,6 +5,7 @@ import json
 import math
 
 import pytest
+import torch
 
 from likeness_train.evaluate import METRIC_KEYS, evaluate, main as evaluate_main
 from likeness_train.networks import load_networks
@@ -38,6 +39,12 @@ def test_evaluate_smoke_checkpoint(checkpoint, tmp_path, face_model):
     assert baseline["expression_mae"] == metrics["expression_mae"]
     assert len(results["per_channel_mae"]) == 53 and "jawOpen" in results["per_channel_mae"]
     assert results["evaluation"] == {"seed": 1000, "people": 2, "frames": 2, "image_size": 128}
+    # The w = 0 reference is the mean true weight of the same held-out frames.
+    from likeness_train.data import SyntheticData
+
+    data = SyntheticData(face_model, face_model.restricted(), seed=1000, image_size=128, frames=2)
+    true_w = torch.cat([data.batch(k, 1).weights for k in range(2)])
+    assert results["baseline"]["zero_weights_expression_mae"] == pytest.approx(float(true_w.abs().mean()), rel=1e-6)
 
     # Deterministic: the same checkpoint evaluated again gives identical numbers.
     again = evaluate(load_networks(checkpoint), people=2, frames=2, model=face_model)

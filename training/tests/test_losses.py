@@ -138,3 +138,21 @@ def test_supported_gradient_loss_equals_the_dense_one():
     dense = sum(L.blendshape_gradient_loss(op, template, corrected[p]) for p in range(2))
     assert fast(corrected).item() == pytest.approx(dense.item(), rel=1e-9)
     assert dense.item() > 0
+
+
+def test_shape_mean_reduction_is_the_mean_over_each_shapes_supported_triangles():
+    verts, tris = _grid_mesh(6)
+    template = torch.stack([verts + 0.2 * torch.randn_like(verts) for _ in range(3)])
+    support = torch.rand(3, verts.shape[0]) < 0.3
+    delta = 0.1 * torch.randn(1, 3, verts.shape[0], 3, dtype=torch.float64) * support[None, :, :, None]
+    corrected = template[None] + delta
+    op = L.GradientOperator.for_rest(verts, tris)
+    expected = 0.0
+    for i in range(3):
+        touched = support[i][op.triangles].any(dim=1)
+        per_triangle = (op(corrected[0, i]) - op(template[i])).pow(2).sum((-1, -2))
+        expected += float(per_triangle[touched].sum() / touched.sum().clamp_min(1))
+    mean = L.SupportedGradientLoss(verts, tris, template, support, reduction="shape_mean")
+    assert mean(corrected).item() == pytest.approx(expected, rel=1e-9)
+    with pytest.raises(ValueError):
+        L.SupportedGradientLoss(verts, tris, template, support, reduction="mean")
