@@ -10,7 +10,8 @@ ModelNet on each person's N frames and compares with the known truth (metrics.py
 - `landmark_nme`: the predicted 68 landmarks projected with the predicted pose (and the
   known camera) vs the true 2D landmarks, over the outer inter-ocular distance;
 - `photometric_error`: the rendered prediction vs the input image on the mask M_n;
-- `expression_mae` (and `per_channel_mae` per ICT blendshape name): |w - w_true|;
+- `expression_mae` (and `per_channel_mae` per ICT blendshape name): |w - w_true|; beside it
+  `per_channel` (predicted and true mean, correlation per channel) and `pose_mae_deg`;
 - `personalization_recovery`: the predicted corrected blendshapes (S_i - S_0) + F(A_i dS_i)
   vs the person's true ones, relative to the template's error (1 = template, 0 = exact);
 - `albedo_error`: equation (3) at 512 with the predicted w, dR_0, dR_i and the trained
@@ -61,7 +62,7 @@ def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int
     mean_albedo = nets.mean_albedo if nets.mean_albedo is not None else region.mean_albedo_face
     template_deltas = region.blendshapes(None)  # [1, 53, Vf, 3]
     sums = {name: dict.fromkeys(METRIC_KEYS, 0.0) for name in ("personalized", "template")}
-    w_pred, w_true = [], []
+    w_pred, w_true, euler_pred, euler_true = [], [], [], []
     for k in range(people):
         # One person per batch: person k of the seed whatever `people` is.
         batch = data.batch(k, 1)
@@ -84,14 +85,24 @@ def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int
                 s["albedo_error"] += float(M.albedo_error(p.albedo, true_albedo, coverage))
         w_pred.append(params.w)
         w_true.append(batch.weights)
+        euler_pred.append(params.euler)
+        euler_true.append(batch.euler)
         if log:
             log(f"person {k + 1}/{people}")
-    per_channel = M.per_channel_mae(torch.cat(w_pred), torch.cat(w_true))
+    w_pred_all, w_true_all = torch.cat(w_pred), torch.cat(w_true)
+    per_channel = M.per_channel_mae(w_pred_all, w_true_all)
+    correlation = M.per_channel_correlation(w_pred_all, w_true_all)
     result = {name: {key: value / people for key, value in s.items()} for name, s in sums.items()}
     return {
         "evaluation": {"seed": seed, "people": people, "frames": frames, "image_size": size},
         "metrics": result["personalized"],
         "per_channel_mae": dict(zip(model.expression_names, (float(v) for v in per_channel))),
+        "per_channel": {
+            name: {"predicted_mean": float(w_pred_all[:, i].mean()), "true_mean": float(w_true_all[:, i].mean()), "correlation": float(correlation[i])}
+            for i, name in enumerate(model.expression_names)
+        },
+        "median_channel_correlation": float(correlation.median()),
+        "pose_mae_deg": M.pose_mae_deg(torch.cat(euler_pred), torch.cat(euler_true)),
         "baseline": {
             "name": "template",
             "what": "same TrackNet, ModelNet corrections dS_0, dS_i, dR_0, dR_i zeroed (template shape, trained R_0^t)",
@@ -133,6 +144,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'metric':<{width}}  personalized  template")
     for key in METRIC_KEYS:
         print(f"{key:<{width}}  {results['metrics'][key]:12.4f}  {results['baseline']['metrics'][key]:8.4f}")
+    print(f"median per-channel correlation of w: {results['median_channel_correlation']:.3f}; pose error (deg): {results['pose_mae_deg']}")
     print(f"expression_mae of w = 0 everywhere: {results['baseline']['zero_weights_expression_mae']:.4f}")
     print(f"wrote {args.out} ({results['elapsed_s']} s)")
 

@@ -65,13 +65,30 @@ def parsing_loss(parsing: torch.Tensor, predicted: torch.Tensor) -> torch.Tensor
     return (torch.sqrt((parsing - predicted).pow(2).flatten(1).sum(1) + 1e-12) / pixels**0.5).sum()
 
 
-def smoothness_loss(dS0_vertices: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
-    """L_sd = sum_v sum_{u in N(v)} ||dS0(v) - dS0(u)||^2.
+def smoothness_loss(dS0_vertices: torch.Tensor, edges: torch.Tensor, reduction: str = "sum") -> torch.Tensor:
+    """L_sd = sum_v sum_{u in N(v)} ||dS0(v) - dS0(u)||^2, summed over the batch.
 
     `edges` [E, 2] lists every undirected edge once; the double sum visits each twice.
+    `reduction="mean"` divides by the 2E (v, u) pairs: see `REDUCTIONS`.
     """
     d = dS0_vertices[:, edges[:, 0]] - dS0_vertices[:, edges[:, 1]]
-    return 2.0 * d.pow(2).sum(-1).sum(-1).sum()
+    total = 2.0 * d.pow(2).sum(-1).sum(-1).sum()
+    if reduction == "mean":
+        return total / (2.0 * edges.shape[0])
+    if reduction != "sum":
+        raise ValueError(f"reduction {reduction!r}: use 'sum' (the paper's formula) or 'mean'")
+    return total
+
+
+# How L_sd and L_bg are normalised against the image terms. The paper writes them as sums
+# over vertices and triangles and gives no normalisation for any term; with L_ph, L_pa and
+# L_lm as per-pixel / per-landmark means (as here), the sums make the *true* corrections of
+# a synthetic person cost ~4,600 (2.5 x 121 + 1.5 x 2,900, measured) against ~20 for the
+# whole photometric term, so training keeps every correction at 0 and TrackNet's w absorbs
+# the person's shape (first full run: w worse than predicting 0). As per-element means
+# (every term a mean over its elements), the truth costs ~0.1 and a wrong expression costs
+# more than it (tests/test_losses.py::test_loss_balance_at_the_truth).
+REDUCTIONS = ("sum", "mean")
 
 
 def unique_edges(triangles: torch.Tensor) -> torch.Tensor:
@@ -127,8 +144,8 @@ class SupportedGradientLoss:
     """
 
     def __init__(self, rest: torch.Tensor, triangles: torch.Tensor, template_shapes: torch.Tensor, support: torch.Tensor, reduction: str = "sum"):
-        if reduction not in ("sum", "shape_mean"):
-            raise ValueError(f"reduction {reduction!r}: use 'sum' (the paper's formula) or 'shape_mean'")
+        if reduction not in ("sum", "shape_mean", "mean"):
+            raise ValueError(f"reduction {reduction!r}: use 'sum' (the paper's formula), 'shape_mean' or 'mean'")
         self.reduction = reduction
         op = GradientOperator.for_rest(rest, triangles)
         shape_idx, tri_idx = [], []
@@ -155,11 +172,13 @@ class SupportedGradientLoss:
     def __call__(self, corrected_shapes: torch.Tensor) -> torch.Tensor:
         """corrected_shapes [P, 53, V, 3] -> sum over people of L_bg. With `shape_mean`, each
         blendshape's squared norm is divided by its supported triangle count (a mean per
-        triangle, summed over blendshapes), which puts it on the per-element scale of the
-        image terms."""
+        triangle, summed over blendshapes); with `mean`, the whole sum is divided by the
+        number of (blendshape, triangle) pairs it covers (see `REDUCTIONS`)."""
         per_triangle = (self._gradients(corrected_shapes) - self.template_gradients).pow(2).sum((-1, -2))  # [P, M]
         if self.reduction == "shape_mean":
             per_triangle = per_triangle * self.per_triangle_scale
+        elif self.reduction == "mean":
+            per_triangle = per_triangle / per_triangle.shape[1]
         return per_triangle.sum()
 
 

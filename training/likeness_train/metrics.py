@@ -61,3 +61,19 @@ def albedo_error(predicted: torch.Tensor, truth: torch.Tensor, coverage: torch.T
     if coverage is None:
         return diff.mean()
     return (diff * coverage).sum() / (coverage.sum() * diff.shape[0]).clamp_min(1.0)
+
+
+def per_channel_correlation(predicted: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """Pearson correlation of predicted and true w per channel over frames [F, 53] -> [53]
+    (0 where either side is constant): near 0 means the channel does not track at all,
+    whatever its mean error."""
+    a = predicted - predicted.mean(0)
+    b = truth - truth.mean(0)
+    denominator = (a.pow(2).sum(0) * b.pow(2).sum(0)).sqrt()
+    return torch.where(denominator > 0, (a * b).sum(0) / denominator.clamp_min(1e-12), torch.zeros_like(denominator))
+
+
+def pose_mae_deg(predicted_euler: torch.Tensor, true_euler: torch.Tensor) -> dict[str, float]:
+    """Mean absolute yaw, pitch and roll error in degrees for Euler angles [F, 3] in radians."""
+    err = (predicted_euler - true_euler).abs().mean(0) * (180.0 / torch.pi)
+    return {"yaw": float(err[0]), "pitch": float(err[1]), "roll": float(err[2])}

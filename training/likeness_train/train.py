@@ -47,7 +47,10 @@ class TrainConfig:
     dynamic_albedo: bool = True  # dR_i (row C)
     parsing_loss: bool = True  # L_pa (row D)
     gradient_loss: bool = True  # L_bg (final row)
-    bg_reduction: str = "sum"  # "sum" (the paper's formula) or "shape_mean" (see losses.SupportedGradientLoss)
+    # L_sd and L_bg as per-element means, like the image terms (losses.REDUCTIONS says why);
+    # "sum" is the paper's formula taken literally.
+    sd_reduction: str = "mean"
+    bg_reduction: str = "mean"  # or "sum", "shape_mean"
     weights: dict = field(default_factory=lambda: dict(L.PAPER_WEIGHTS))
     checkpoint_every_s: float = 300.0
     threads: int = 2
@@ -152,7 +155,7 @@ class Trainer:
         terms = {
             "ph": L.photometric_loss(images, out.image, out.mask) + L.gradient_loss(images, out.image, out.mask),
             "lm": L.landmark_loss(batch.landmarks, landmarks),
-            "sd": L.smoothness_loss(self.region.sample_uv(c.dS0), self.edges),
+            "sd": L.smoothness_loss(self.region.sample_uv(c.dS0), self.edges, reduction=self.cfg.sd_reduction),
         }
         if self.cfg.parsing_loss:
             terms["pa"] = L.parsing_loss(batch.parsing, out.parsing)
@@ -275,7 +278,8 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
         parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")
     parser.add_argument("--data", type=str, default=None, help="cache directory written by `python -m likeness_train.dataset`")
-    parser.add_argument("--bg-reduction", choices=("sum", "shape_mean"), default=defaults.bg_reduction)
+    parser.add_argument("--sd-reduction", choices=("sum", "mean"), default=defaults.sd_reduction)
+    parser.add_argument("--bg-reduction", choices=("sum", "shape_mean", "mean"), default=defaults.bg_reduction)
     args = vars(parser.parse_args(argv))
     out = args.pop("out")
     return TrainConfig(**args), out

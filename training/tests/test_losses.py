@@ -155,4 +155,55 @@ def test_shape_mean_reduction_is_the_mean_over_each_shapes_supported_triangles()
     mean = L.SupportedGradientLoss(verts, tris, template, support, reduction="shape_mean")
     assert mean(corrected).item() == pytest.approx(expected, rel=1e-9)
     with pytest.raises(ValueError):
-        L.SupportedGradientLoss(verts, tris, template, support, reduction="mean")
+        L.SupportedGradientLoss(verts, tris, template, support, reduction="median")
+
+
+def test_loss_balance_at_the_truth(tmp_path):
+    """With the training's normalisation, the true person must be (nearly) free for the
+    regularisers and cheaper in total than a wrong expression: otherwise training prefers
+    zero corrections and lets w absorb the person (what the first full run did)."""
+    from likeness_train.networks import Corrections, TrackParams
+    from likeness_train.train import TrainConfig, Trainer
+
+    torch.set_flush_denormal(True)
+    trainer = Trainer(TrainConfig(people_per_batch=1, frames=2), tmp_path)
+    weights = trainer.cfg.weights
+    batch = trainer.synthetic.batch(3, 1)
+    person = trainer.synthetic.people.person(3)
+    truth = Corrections(person.dS0[None], person.dS[None], person.dR0[None], person.dR[None])
+
+    def total(w, corrections):
+        params = TrackParams(w, batch.euler, batch.translation, batch.gamma)
+        with torch.no_grad():
+            terms = trainer.losses(batch, params, corrections, with_reg=False)
+        data = sum(weights[k] * float(terms[k]) for k in ("ph", "lm", "pa"))
+        regularisers = sum(weights[k] * float(terms[k]) for k in ("sd", "bg"))
+        return data, regularisers
+
+    data_true, reg_true = total(batch.weights, truth)
+    jaw = trainer.model.expression_names.index("jawOpen")
+    wrong = batch.weights.clone()
+    wrong[:, jaw] = (wrong[:, jaw] + 0.5).clamp(max=1.0)
+    data_wrong, _ = total(wrong, truth)
+    zero = Corrections(*(torch.zeros_like(t) for t in (truth.dS0, truth.dS, truth.dR0, truth.dR)))
+    data_zero, reg_zero = total(batch.weights, zero)
+    assert reg_zero == 0.0
+    assert data_wrong - data_true > 10 * reg_true, (data_true, data_wrong, reg_true)
+    # The person's own corrections explain the images better than the template, by more
+    # than they cost in the regularisers.
+    assert data_zero - data_true > reg_true, (data_zero, data_true, reg_true)
+
+
+def test_mean_reductions_divide_by_their_element_counts():
+    verts, tris = _grid_mesh(5)
+    edges = L.unique_edges(tris)
+    x = torch.randn(2, verts.shape[0], 3, dtype=torch.float64)
+    assert L.smoothness_loss(x, edges, "mean").item() == pytest.approx(L.smoothness_loss(x, edges).item() / (2 * edges.shape[0]))
+    with pytest.raises(ValueError):
+        L.smoothness_loss(x, edges, "median")
+    template = torch.stack([verts + 0.2 * torch.randn_like(verts) for _ in range(2)])
+    support = torch.rand(2, verts.shape[0]) < 0.5
+    corrected = template[None] + 0.1 * torch.randn(1, 2, verts.shape[0], 3, dtype=torch.float64) * support[None, :, :, None]
+    total = L.SupportedGradientLoss(verts, tris, template, support)
+    mean = L.SupportedGradientLoss(verts, tris, template, support, reduction="mean")
+    assert mean(corrected).item() == pytest.approx(total(corrected).item() / total.shape_idx.shape[0], rel=1e-9)

@@ -42,3 +42,16 @@ def test_photometric_and_albedo_error():
     assert M.photometric_error(img, off, mask).item() == pytest.approx(0.5, rel=1e-5)
     a = torch.rand(2, 3, 8, 8)
     assert M.albedo_error(a + 0.2, a).item() == pytest.approx(0.2, rel=1e-5)
+
+
+def test_per_channel_correlation_and_pose_error():
+    import math
+
+    from likeness_train.metrics import per_channel_correlation, pose_mae_deg
+
+    t = torch.rand(50, 3, dtype=torch.float64)
+    predicted = torch.stack([2 * t[:, 0] + 1, 1 - t[:, 1], torch.full((50,), 0.3, dtype=torch.float64)], dim=1)
+    c = per_channel_correlation(predicted, t)
+    assert c[0].item() == pytest.approx(1.0) and c[1].item() == pytest.approx(-1.0) and c[2].item() == 0.0
+    e = pose_mae_deg(torch.tensor([[math.radians(10), 0.0, -math.radians(4)]]), torch.zeros(1, 3))
+    assert e["yaw"] == pytest.approx(10.0) and e["pitch"] == 0.0 and e["roll"] == pytest.approx(4.0)
