@@ -52,25 +52,34 @@ HEADINGS = {
 
 def _run(args: list[str]) -> None:
     print("$ " + " ".join(args), flush=True)
-    subprocess.run(args, check=True)
+    if subprocess.run(args).returncode != 0:
+        raise SystemExit(f"failed: {' '.join(args)} (rerun the ablation to resume from its checkpoint)")
 
 
-def _matches(results: dict, stage1: int, stage2: int, row: str) -> bool:
-    """A stored row counts only if it was trained with this budget and this row's flags."""
+def _read_results(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise SystemExit(f"cannot read evaluation results {path}: {e}") from None
+
+
+def _matches(results: dict, stage1: int, stage2: int, row: str, people: int) -> bool:
+    """A stored row counts only if it was trained with this budget, this row's flags and the
+    same loss normalisation, and evaluated on as many people."""
     from .train import config_from_args
 
     cfg = results.get("config", {})
     expected, _ = config_from_args(["--out", "x", "--stage1-steps", str(stage1), "--stage2-steps", str(stage2), *ROWS[row][1]])
-    keys = ("stage1_steps", "stage2_steps", "expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss", "input_size", "track_width", "model_width")
-    return all(cfg.get(k) == getattr(expected, k) for k in keys) and results.get("evaluation", {}).get("people") is not None
+    keys = ("stage1_steps", "stage2_steps", "expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss", "input_size", "track_width", "model_width", "sd_reduction", "bg_reduction", "weights")
+    return all(cfg.get(k) == getattr(expected, k) for k in keys) and results.get("evaluation", {}).get("people") == people
 
 
 def train_and_evaluate(row: str, runs: Path, common: list[str], people: int, stored: Path, stage1: int, stage2: int) -> dict:
     """Trains and evaluates one row, or reuses its stored results (committed with the
     repository, so a row survives the machine it was trained on)."""
     if stored.exists():
-        results = json.loads(stored.read_text())
-        if _matches(results, stage1, stage2, row) and results["evaluation"]["people"] == people:
+        results = _read_results(stored)
+        if _matches(results, stage1, stage2, row, people):
             print(f"row {row}: using {stored}", flush=True)
             return results
     out = runs / row
@@ -79,10 +88,10 @@ def train_and_evaluate(row: str, runs: Path, common: list[str], people: int, sto
     checkpoint, results = out / "checkpoint.pt", out / "results.json"
     if not results.exists() or results.stat().st_mtime < checkpoint.stat().st_mtime:
         _run([python, "-m", "likeness_train.evaluate", "--checkpoint", str(checkpoint), "--out", str(results), "--people", str(people)])
-    text = results.read_text()
+    data = _read_results(results)
     stored.parent.mkdir(parents=True, exist_ok=True)
-    stored.write_text(text)
-    return json.loads(text)
+    stored.write_text(json.dumps(data, indent=2) + "\n")
+    return data
 
 
 def table(rows: list[tuple[str, str, dict]]) -> str:
@@ -146,7 +155,7 @@ def main(argv: list[str] | None = None) -> None:
         results = train_and_evaluate(row, args.runs, common, args.people, stored, args.stage1_steps, args.stage2_steps)
         collected.append((row, ROWS[row][0], results))
     if args.full is not None:
-        results = json.loads(args.full.read_text())
+        results = _read_results(args.full)
         collected.append(("full", "final, the full training (the shipped models)", results))
     baseline = collected[-1][2]["baseline"]["metrics"] if collected else None
     text = table(collected)

@@ -55,3 +55,14 @@ def test_stored_rows_are_reused_only_for_the_same_budget_and_flags(tmp_path, mon
         with pytest.raises(Trains) as trained:
             ablation.train_and_evaluate(row, tmp_path / "runs", [], people, stored, s1, s2)
         assert "likeness_train.train" in trained.value.args[0]
+
+
+def test_unreadable_results_are_a_clear_error(tmp_path):
+    from likeness_train.ablation import main
+
+    bad = tmp_path / "full.json"
+    bad.write_text("{not json")
+    with pytest.raises(SystemExit, match="cannot read evaluation results"):
+        main(["--rows", "", "--full", str(bad), "--out", str(tmp_path / "ablation.md")])
+    with pytest.raises(SystemExit, match="cannot read evaluation results"):
+        main(["--rows", "", "--full", str(tmp_path / "missing.json"), "--out", str(tmp_path / "ablation.md")])
