@@ -13,6 +13,9 @@ done
 if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then
   need+=(python3-venv python3-pip)
 fi
+# Node runs the Khronos glTF validator in retarget's tests (npm package gltf-validator).
+command -v node >/dev/null 2>&1 || need+=(nodejs)
+command -v npm >/dev/null 2>&1 || need+=(npm)
 if [ "${#need[@]}" -gt 0 ]; then
   echo "setup: installing ${need[*]}"
   SUDO=""
@@ -30,4 +33,11 @@ fi
 # wgpu warns without a private runtime folder on headless machines.
 if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
   mkdir -p -m 700 /tmp/likeness-xdg
+fi
+
+# The Khronos glTF validator, pinned in tools/gltf-validator/package.json (from npm).
+validator_dir="$(cd "$(dirname "$0")/.." && pwd)/tools/gltf-validator"
+if [ ! -d "$validator_dir/node_modules/gltf-validator" ]; then
+  echo "setup: installing the Khronos glTF validator (npm)"
+  npm install --prefix "$validator_dir" --no-audit --no-fund --silent >/dev/null
 fi

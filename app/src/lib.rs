@@ -7,5 +7,7 @@
 
 pub mod fixture;
 pub mod headless;
+pub mod puppet_view;
+pub mod retarget_cli;
 pub mod scene;
 pub mod studio;

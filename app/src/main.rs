@@ -47,6 +47,30 @@ enum Command {
         #[arg(long, default_value = "training/.cache")]
         out: PathBuf,
     },
+    /// Drive a glTF/GLB/VRM puppet with tracked motion and export the result. Prints the
+    /// mapping report (what drives what, what is unmapped or ambiguous).
+    Retarget {
+        /// Tracking JSON (`likeness track`, or any file with `arkit_names` and frames of
+        /// `arkit_weights`) or a Live Link Face CSV.
+        #[arg(long)]
+        tracks: PathBuf,
+        /// The puppet: .glb, .gltf or .vrm.
+        #[arg(long)]
+        puppet: PathBuf,
+        /// Mapping data (JSON). Default: PUPPET.mapping.json beside the puppet if it
+        /// exists, else automatic mapping by names.
+        #[arg(long)]
+        mapping: Option<PathBuf>,
+        /// anim.glb (the puppet with a glTF animation), anim.csv (Live Link Face) or
+        /// anim.json (per-frame morph weights), chosen by the extension.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Regenerate the project's own puppets (assets/puppets/*.glb) from their code.
+    GeneratePuppets {
+        #[arg(long, default_value = "assets/puppets")]
+        out: PathBuf,
+    },
     /// Render one view of the face to a PNG file without a window.
     Screenshot {
         #[arg(long)]
@@ -106,19 +130,32 @@ fn main() -> Result<()> {
     let command = cli.command.unwrap_or(Command::Studio {
         out: "likeness-demo".into(),
     });
-    let scene = Scene::load(cli.facemodel.as_deref())?;
+    let load_scene = || Scene::load(cli.facemodel.as_deref());
     match command {
+        Command::Retarget {
+            tracks,
+            puppet,
+            mapping,
+            out,
+        } => likeness::retarget_cli::run(&tracks, &puppet, mapping.as_deref(), &out)?,
+        Command::GeneratePuppets { out } => {
+            for path in retarget::generator::write_all(&out)? {
+                println!("wrote {}", path.display());
+            }
+        }
         Command::Studio { out } if !has_display() => {
             eprintln!(
                 "No display found: writing the studio's demo views to {} instead.",
                 out.display()
             );
-            report_written(&write_demo_views(&scene, &out, (800, 800))?);
+            report_written(&write_demo_views(&load_scene()?, &out, (800, 800))?);
         }
-        Command::Studio { .. } => run_studio(scene)?,
-        Command::Demo { out, .. } => report_written(&write_demo_views(&scene, &out, (800, 800))?),
+        Command::Studio { .. } => run_studio(load_scene()?)?,
+        Command::Demo { out, .. } => {
+            report_written(&write_demo_views(&load_scene()?, &out, (800, 800))?)
+        }
         Command::ExportFixture { out } => {
-            let path = likeness::fixture::export_fixture(&scene.model, &out)?;
+            let path = likeness::fixture::export_fixture(&load_scene()?.model, &out)?;
             println!("wrote {}", path.display());
         }
         Command::Screenshot {
@@ -144,6 +181,7 @@ fn main() -> Result<()> {
                 pitch_deg: pitch,
                 ..Orbit::default()
             };
+            let scene = load_scene()?;
             let mut renderer = offscreen(&scene)?;
             let image = render_view(&scene, &mut renderer, view, &weights, &orbit, size)?;
             save_png(&image, &out)?;

@@ -210,6 +210,9 @@ class TrackNet(nn.Module):
         hidden: int = 512,
         translation_prior: tuple[float, float, float] = (0.0, 0.0, -60.0),
         gamma_prior: torch.Tensor | None = None,
+        rotation_scale: float = 1.0,
+        translation_scale: float = 10.0,
+        w_gain: float = 1.0,
     ):
         super().__init__()
         self.encoder = ResNet18Encoder(width)
@@ -218,8 +221,14 @@ class TrackNet(nn.Module):
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
         # w = sigmoid(x) starts at 0.5 with zero logits; start near 0 instead (sparse prior).
+        # Output scales: euler = rotation_scale * raw (radians), translation = prior +
+        # translation_scale * raw (cm), w = sigmoid(w_gain * raw). They set how strongly each
+        # output's gradient reaches the shared trunk (train.TrainConfig says why they matter).
+        self.rotation_scale = rotation_scale
+        self.translation_scale = translation_scale
+        self.w_gain = w_gain
         with torch.no_grad():
-            self.head.bias[:NUM_BLENDSHAPES] = -4.0
+            self.head.bias[:NUM_BLENDSHAPES] = -4.0 / w_gain
         self.register_buffer("translation_prior", torch.tensor(translation_prior, dtype=torch.float32))
         if gamma_prior is None:
             gamma_prior = torch.zeros(27)
@@ -227,10 +236,9 @@ class TrackNet(nn.Module):
 
     def forward(self, images: torch.Tensor) -> TrackParams:
         raw = self.head(self.fc(self.encoder(images)))
-        w = torch.sigmoid(raw[:, :NUM_BLENDSHAPES])
-        euler = raw[:, NUM_BLENDSHAPES : NUM_BLENDSHAPES + 3]
-        # Translation offsets in tens of centimetres keep the output scale near 1.
-        translation = self.translation_prior + 10.0 * raw[:, NUM_BLENDSHAPES + 3 : NUM_BLENDSHAPES + 6]
+        w = torch.sigmoid(self.w_gain * raw[:, :NUM_BLENDSHAPES])
+        euler = self.rotation_scale * raw[:, NUM_BLENDSHAPES : NUM_BLENDSHAPES + 3]
+        translation = self.translation_prior + self.translation_scale * raw[:, NUM_BLENDSHAPES + 3 : NUM_BLENDSHAPES + 6]
         gamma = self.gamma_prior + raw[:, NUM_BLENDSHAPES + 6 :]
         return TrackParams(w, euler, translation, gamma)
 
@@ -255,7 +263,12 @@ def load_networks(path) -> TrainedNetworks:
     export and the evaluation; the priors are buffers, so they come with the weights)."""
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
     cfg = ckpt["config"]
-    track = TrackNet(width=cfg["track_width"])
+    track = TrackNet(
+        width=cfg["track_width"],
+        rotation_scale=cfg.get("track_rotation_scale", 1.0),
+        translation_scale=cfg.get("track_translation_scale", 10.0),
+        w_gain=cfg.get("track_w_gain", 1.0),
+    )
     model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
     track.load_state_dict(ckpt["track_net"])
     model.load_state_dict(ckpt["model_net"])

@@ -66,3 +66,14 @@ def test_unreadable_results_are_a_clear_error(tmp_path):
         main(["--rows", "", "--full", str(bad), "--out", str(tmp_path / "ablation.md")])
     with pytest.raises(SystemExit, match="cannot read evaluation results"):
         main(["--rows", "", "--full", str(tmp_path / "missing.json"), "--out", str(tmp_path / "ablation.md")])
+
+
+def test_weight_overrides_change_one_term_and_bad_ones_are_refused(capsys):
+    from likeness_train.losses import TRAINING_WEIGHTS
+
+    config, _ = config_from_args(["--out", "x", "--weight", "lm=1.5", "--weight", "pa=0"])
+    assert config.weights == {**TRAINING_WEIGHTS, "lm": 1.5, "pa": 0.0}
+    for bad in ("xx=1", "lm=abc", "lm=-1", "lm=nan", "lm"):
+        with pytest.raises(SystemExit):
+            config_from_args(["--out", "x", "--weight", bad])
+        assert "--weight" in capsys.readouterr().err

@@ -55,3 +55,25 @@ def test_track_net_outputs_and_priors():
     assert p.w.max() < 0.05
     assert torch.allclose(p.translation, torch.tensor([0.0, 0.0, -60.0]).expand(5, 3))
     assert parameter_count(TrackNet(width=1.0).encoder) == pytest.approx(11.18e6, rel=0.02)
+
+
+def test_track_net_output_scales_scale_outputs_and_their_gradients():
+    """euler = s_r raw, translation = prior + s_t raw, w = sigmoid(g raw): the same head
+    output maps to scaled pose, and the trunk receives the pose gradient times the scale."""
+    torch.manual_seed(0)
+    x = torch.randn(2, 3, 128, 128)
+    base = TrackNet(width=0.25).eval()
+    scaled = TrackNet(width=0.25, rotation_scale=0.05, translation_scale=0.5, w_gain=4.0).eval()
+    scaled.load_state_dict(base.state_dict())
+    with torch.no_grad():
+        for net in (base, scaled):
+            net.head.weight.normal_(0, 0.01)
+        scaled.head.weight.copy_(base.head.weight)
+        scaled.head.bias.copy_(base.head.bias)
+    a, b = base(x), scaled(x)
+    assert torch.allclose(b.euler, 0.05 * a.euler, atol=1e-6)
+    assert torch.allclose(b.translation - scaled.translation_prior, 0.05 * (a.translation - base.translation_prior), atol=1e-5)
+    raw_w = torch.logit(a.w.double()).float()
+    assert torch.allclose(b.w, torch.sigmoid(4.0 * raw_w), atol=1e-5)
+    # Untrained w still starts near 0 whatever the gain.
+    assert TrackNet(width=0.25, w_gain=4.0).eval()(x).w.max() < 0.05

@@ -1,0 +1,97 @@
+//! The project's puppets through the GPU renderer on lavapipe: neutral and jawOpen +
+//! eyeBlinkLeft, against golden PNGs, with morph targets blended on the GPU.
+//!
+//! Tolerance: `Tolerance::default()` (every channel within 3/255 for 99.5 % of the pixels).
+//! Regenerate with `LIKENESS_UPDATE_GOLDENS=1 cargo test -p likeness-tests --test puppet_render`.
+
+use std::path::PathBuf;
+
+use face::names::{NUM_ARKIT, arkit_index};
+use likeness::puppet_view::{PuppetView, render_puppet};
+use renderer::OffscreenRenderer;
+use renderer::golden::{Tolerance, assert_matches_golden};
+use retarget::{MappingData, Puppet, Retargeter};
+
+const SIZE: (u32, u32) = (256, 256);
+
+fn puppet_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../assets/puppets")
+        .join(format!("{name}.glb"))
+}
+
+fn golden(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("goldens")
+        .join(format!("{name}.png"))
+}
+
+/// Pixels whose colour changes by more than 10/255 in some channel inside `rect`.
+fn changed_in(a: &image::RgbaImage, b: &image::RgbaImage, rect: (u32, u32, u32, u32)) -> usize {
+    let (x0, y0, x1, y1) = rect;
+    let mut n = 0;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let (p, q) = (a.get_pixel(x, y), b.get_pixel(x, y));
+            if p.0.iter().zip(q.0.iter()).any(|(s, t)| s.abs_diff(*t) > 10) {
+                n += 1;
+            }
+        }
+    }
+    n
+}
+
+#[test]
+fn puppets_at_neutral_and_jaw_open_with_left_blink() {
+    for name in ["pip", "bolt"] {
+        let puppet = Puppet::load(&puppet_path(name)).unwrap_or_else(|e| panic!("{e}"));
+        let retargeter = Retargeter::new(&puppet, &MappingData::default());
+        let view = PuppetView::new(&puppet).unwrap();
+        let mut renderer = OffscreenRenderer::new(&view.mesh, &view.textures)
+            .unwrap_or_else(|e| panic!("no adapter: {e}"));
+        let neutral_pose = retargeter.pose(&[0.0; NUM_ARKIT], None);
+        let mut arkit = [0.0; NUM_ARKIT];
+        arkit[arkit_index("jawOpen").unwrap()] = 1.0;
+        arkit[arkit_index("eyeBlinkLeft").unwrap()] = 1.0;
+        let expressive_pose = retargeter.pose(&arkit, None);
+        let neutral = render_puppet(&mut renderer, &view, &neutral_pose, 0.0, SIZE).unwrap();
+        let expressive = render_puppet(&mut renderer, &view, &expressive_pose, 0.0, SIZE).unwrap();
+        assert_matches_golden(
+            &golden(&format!("puppet_{name}_neutral")),
+            &neutral,
+            Tolerance::default(),
+        );
+        assert_matches_golden(
+            &golden(&format!("puppet_{name}_jaw_open_blink_left")),
+            &expressive,
+            Tolerance::default(),
+        );
+
+        // Independent of the goldens: the mouth (lower middle) and the puppet's left eye (the
+        // viewer's right, upper half) change; its right eye (viewer's left) does not.
+        let (w, h) = SIZE;
+        let mouth = changed_in(
+            &neutral,
+            &expressive,
+            (w * 3 / 8, h * 9 / 16, w * 5 / 8, h * 7 / 8),
+        );
+        let left_eye = changed_in(
+            &neutral,
+            &expressive,
+            (w / 2 + w / 16, h / 4, w * 7 / 8, h / 2),
+        );
+        let right_eye = changed_in(&neutral, &expressive, (w / 8, h / 4, w / 2 - w / 16, h / 2));
+        assert!(
+            mouth > 100,
+            "{name}: the open jaw changed only {mouth} mouth pixels"
+        );
+        assert!(
+            left_eye > 40,
+            "{name}: the left blink changed only {left_eye} pixels"
+        );
+        assert!(
+            right_eye < left_eye / 4,
+            "{name}: the right eye changed too ({right_eye} vs {left_eye})"
+        );
+    }
+}
