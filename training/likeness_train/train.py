@@ -60,6 +60,9 @@ class TrainConfig:
     sd_reduction: str = "sum"  # or "mean"
     bg_reduction: str = "shape_mean"  # or "sum", "mean"
     weights: dict = field(default_factory=lambda: dict(L.TRAINING_WEIGHTS))
+    # Diagnostic only (never for shipped models): replace ModelNet's dS_0 by each person's
+    # true identity offset, to see whether TrackNet's w tracks when identity is not in its way.
+    oracle_identity: bool = False
     checkpoint_every_s: float = 300.0
     threads: int = 2
     data: str | None = None  # cache directory of pre-rendered batches (dataset.py)
@@ -191,6 +194,9 @@ class Trainer:
             _, corrections = self.predict_model_only(batch)
         else:
             params, corrections = self.predict(batch)
+        if self.cfg.oracle_identity:
+            first = batch.index * batch.people
+            corrections.dS0 = torch.stack([self.synthetic.people.person(first + p).dS0 for p in range(batch.people)])
         terms = self.losses(batch, params, corrections, with_reg=not frozen_tracking)
         total = sum(self.cfg.weights[k] * v for k, v in terms.items())
         self.optimizer.zero_grad(set_to_none=True)
@@ -289,6 +295,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
         parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")
     parser.add_argument("--data", type=str, default=None, help="cache directory written by `python -m likeness_train.dataset`")
+    parser.add_argument("--oracle-identity", action="store_true", help="diagnostic: use each person's true dS_0 instead of ModelNet's")
     parser.add_argument("--sd-reduction", choices=("sum", "mean"), default=defaults.sd_reduction)
     parser.add_argument("--bg-reduction", choices=("sum", "shape_mean", "mean"), default=defaults.bg_reduction)
     parser.add_argument(
