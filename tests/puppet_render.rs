@@ -95,3 +95,64 @@ fn puppets_at_neutral_and_jaw_open_with_left_blink() {
         );
     }
 }
+
+/// The personalized rig (the template person) loads in the renderer: textured base colour
+/// from the GLB's images, and its jawOpen target opens the mouth on the GPU.
+#[test]
+fn personalized_rig_renders_with_its_textures_and_targets() {
+    let template = face::Template::load_default(None)
+        .unwrap_or_else(|e| panic!("this test needs the template: {e}"));
+    let model = face::FaceModel::new(template);
+    let person = model.template_blendshapes();
+    let mean = face::albedo::MeanAlbedo::generate(&model.template);
+    let corrections = face::PersonalCorrections::zeros();
+    let rig =
+        retarget::rig::PersonalizedRig::new(&model, &person, &corrections, &mean, mean.face())
+            .unwrap();
+    let dir = std::env::temp_dir().join(format!("likeness-rig-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("rig.glb");
+    retarget::rig::write_rig_glb(&rig, &path).unwrap();
+    let puppet = Puppet::load(&path).unwrap();
+    let retargeter = Retargeter::new(&puppet, &MappingData::default());
+    let view = PuppetView::new(&puppet).unwrap();
+    assert_eq!(
+        view.textures.width, 512,
+        "the rig's 512 px albedo tiles are uploaded"
+    );
+    let mut renderer = OffscreenRenderer::new(&view.mesh, &view.textures)
+        .unwrap_or_else(|e| panic!("no adapter: {e}"));
+    let neutral = render_puppet(
+        &mut renderer,
+        &view,
+        &retargeter.pose(&[0.0; NUM_ARKIT], None),
+        0.0,
+        SIZE,
+    )
+    .unwrap();
+    let mut arkit = [0.0; NUM_ARKIT];
+    arkit[arkit_index("jawOpen").unwrap()] = 1.0;
+    let open = render_puppet(
+        &mut renderer,
+        &view,
+        &retargeter.pose(&arkit, None),
+        0.0,
+        SIZE,
+    )
+    .unwrap();
+    // Skin-coloured pixels (R > G > B, not the grey background) cover a good part of the view.
+    let skin = neutral
+        .pixels()
+        .filter(|p| p[0] > 90 && p[0] > p[1] && p[1] > p[2])
+        .count();
+    assert!(
+        skin > (SIZE.0 * SIZE.1 / 10) as usize,
+        "only {skin} skin pixels"
+    );
+    let (w, h) = SIZE;
+    let mouth = changed_in(&neutral, &open, (w / 4, h / 2, w * 3 / 4, h));
+    assert!(
+        mouth > 200,
+        "jawOpen changed only {mouth} pixels of the lower face"
+    );
+}

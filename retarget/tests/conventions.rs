@@ -262,3 +262,25 @@ fn head_rotation_turns_the_head_node_in_world_axes() {
         "{forward}"
     );
 }
+
+#[test]
+fn perfect_sync_clips_follow_their_arkit_channel() {
+    // A VRM 1.0 avatar whose custom clips carry ARKit names and bind targets named otherwise.
+    let names: Vec<String> = (0..3).map(|k| format!("Shape.{k:03}")).collect();
+    let ext = json!({"VRMC_vrm": {"expressions": {"custom": {
+        "jawOpen": {"morphTargetBinds": [{"node": 0, "index": 0, "weight": 1.0}]},
+        "EyeBlinkLeft": {"morphTargetBinds": [{"node": 0, "index": 1, "weight": 1.0}]},
+        "mouthSmile_R": {"morphTargetBinds": [{"node": 0, "index": 2, "weight": 0.5}]}
+    }}}});
+    let puppet = load(&tiny_puppet(&names, Naming::Extras, Some(ext)));
+    let r = Retargeter::new(&puppet, &MappingData::default());
+    assert_eq!(r.report.mapped.len(), 3, "{}", r.report);
+    let mut arkit = [0.0; NUM_ARKIT];
+    arkit[arkit_index("jawOpen").unwrap()] = 0.3;
+    arkit[arkit_index("eyeBlinkLeft").unwrap()] = 0.6;
+    arkit[arkit_index("mouthSmileRight").unwrap()] = 0.8;
+    let w = r.pose(&arkit, None).morph_weights[0].clone();
+    for (k, e) in [0.3, 0.6, 0.4].iter().enumerate() {
+        assert!((w[k] - e).abs() < 1e-6, "target {k}: {} vs {e}", w[k]);
+    }
+}

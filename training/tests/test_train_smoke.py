@@ -5,6 +5,7 @@ training)."""
 import json
 import math
 
+import pytest
 import torch
 
 from likeness_train.export import main as export_main
@@ -68,3 +69,17 @@ def test_ablation_flags_switch_terms_off(tmp_path):
     values = trainer.train_step()
     assert "pa" not in values and "bg" not in values
     assert {"ph", "lm", "sd", "reg"} <= set(values)
+
+
+def test_oracle_identity_uses_the_true_identity_offset(tmp_path):
+    """The diagnostic `--oracle-identity`: L_sd is then the smoothness of each person's true
+    dS_0, computed here independently from the synthetic people."""
+    from likeness_train import losses as L
+
+    trainer = Trainer(_config(oracle_identity=True, stage1_steps=1, stage2_steps=0), tmp_path / "o")
+    values = trainer.train_step()
+    people = trainer.cfg.people_per_batch
+    true_dS0 = torch.stack([trainer.synthetic.people.person(p).dS0 for p in range(people)])
+    expected = L.smoothness_loss(trainer.region.sample_uv(true_dS0), trainer.edges, reduction=trainer.cfg.sd_reduction) / people
+    assert values["sd"] == pytest.approx(float(expected), rel=1e-5)
+    assert float(expected) > 0
