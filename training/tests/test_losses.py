@@ -210,3 +210,14 @@ def test_mean_reductions_divide_by_their_element_counts():
     total = L.SupportedGradientLoss(verts, tris, template, support)
     mean = L.SupportedGradientLoss(verts, tris, template, support, reduction="mean")
     assert mean(corrected).item() == pytest.approx(total(corrected).item() / total.shape_idx.shape[0], rel=1e-9)
+
+
+def test_diagnose_weight_costs_grow_away_from_the_truth():
+    """`python -m likeness_train.diagnose`: on people whose jawOpen is 0, opening the jaw
+    costs every data term more, the full opening more than half of it."""
+    from likeness_train.diagnose import weight_costs
+
+    torch.set_flush_denormal(True)
+    costs = weight_costs(("jawOpen",), batches=(3,))
+    sums = [sum(costs[("jawOpen", v)].values()) for v in (0.0, 0.5, 1.0)]
+    assert sums[0] < sums[1] < sums[2], sums
