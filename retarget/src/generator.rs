@@ -358,17 +358,14 @@ fn rest_position(head: &Head, part: &Part, (s, t): (f32, f32)) -> Vec3 {
 /// Where a decal vertex's (s, t) goes under `shape` at full weight (identity when the shape
 /// does not touch the feature).
 fn remap(style: &PuppetStyle, feature: Feature, shape: &str, (s, t): (f32, f32)) -> (f32, f32) {
-    let side_of = |name: &str| {
-        if name.ends_with("Left") {
-            Some(Side::Left)
-        } else if name.ends_with("Right") {
-            Some(Side::Right)
-        } else {
-            None
-        }
+    // `mouthLeft` / `mouthRight` (like `jawLeft` / `jawRight`) are directions, not one side
+    // of a pair: they keep their whole name as the stem.
+    let directional = matches!(shape, "mouthLeft" | "mouthRight" | "jawLeft" | "jawRight");
+    let (stem, shape_side) = match (shape.strip_suffix("Left"), shape.strip_suffix("Right")) {
+        (Some(stem), _) if !directional => (stem, Some(Side::Left)),
+        (_, Some(stem)) if !directional => (stem, Some(Side::Right)),
+        _ => (shape, None),
     };
-    let shape_side = side_of(shape);
-    let stem = shape.trim_end_matches("Left").trim_end_matches("Right");
     let (ms, mt) = style.mouth_size;
     let (es, et) = style.eye_size;
     match feature {
@@ -415,9 +412,8 @@ fn remap(style: &PuppetStyle, feature: Feature, shape: &str, (s, t): (f32, f32))
                 ("mouthClose", _) => (s, t * 0.25),
                 ("mouthFunnel", _) => (s * 0.55, t * 1.6),
                 ("mouthPucker", _) => (s * 0.45, t * 0.6),
-                // `mouthLeft` / `mouthRight` lose their whole name to the side suffix.
-                ("mouth", _) if shape == "mouthLeft" => (s + 0.12 * ms, t),
-                ("mouth", _) if shape == "mouthRight" => (s - 0.12 * ms, t),
+                ("mouthLeft", _) => (s + 0.12 * ms, t),
+                ("mouthRight", _) => (s - 0.12 * ms, t),
                 ("mouthSmile", _) => {
                     let sd = shape_side.unwrap_or(Side::Left);
                     (

@@ -24,7 +24,7 @@
 //!
 //! VRM "perfect sync" clips named as ARKit's are driven directly by their channel instead.
 
-use face::names::{ARKIT_NAMES, NUM_ARKIT};
+use face::names::NUM_ARKIT;
 use serde_json::Value;
 
 /// The VRM 1.0 expression presets.
@@ -127,30 +127,27 @@ impl VrmPreset {
 
     /// The preset's weight from ARKit weights (the module's table).
     pub fn weight(self, arkit: &[f32; NUM_ARKIT]) -> f32 {
-        let w = |name: &str| {
-            ARKIT_NAMES
-                .iter()
-                .position(|n| *n == name)
-                .map_or(0.0, |a| arkit[a])
-        };
-        let mean = |stem: &str| 0.5 * (w(&format!("{stem}Left")) + w(&format!("{stem}Right")));
+        // Runs per frame and preset: name lookups only, no allocation.
+        let w = |name: &str| face::names::arkit_index(name).map_or(0.0, |a| arkit[a]);
+        let mean = |left: &str, right: &str| 0.5 * (w(left) + w(right));
         let blink = w("eyeBlinkLeft").min(w("eyeBlinkRight"));
         let value = match self {
             VrmPreset::Blink => blink,
             VrmPreset::BlinkLeft => w("eyeBlinkLeft") - blink,
             VrmPreset::BlinkRight => w("eyeBlinkRight") - blink,
             VrmPreset::Aa => w("jawOpen"),
-            VrmPreset::Ih => mean("mouthUpperUp"),
+            VrmPreset::Ih => mean("mouthUpperUpLeft", "mouthUpperUpRight"),
             VrmPreset::Ou => w("mouthPucker"),
-            VrmPreset::Ee => mean("mouthStretch"),
+            VrmPreset::Ee => mean("mouthStretchLeft", "mouthStretchRight"),
             VrmPreset::Oh => w("mouthFunnel"),
-            VrmPreset::Happy => mean("mouthSmile"),
-            VrmPreset::Angry => mean("browDown"),
-            VrmPreset::Sad => mean("mouthFrown"),
-            VrmPreset::Relaxed => mean("mouthSmile").min(mean("eyeSquint")),
-            VrmPreset::Surprised => 0.5 * (w("browInnerUp") + mean("eyeWide")),
-            VrmPreset::LookUp => mean("eyeLookUp"),
-            VrmPreset::LookDown => mean("eyeLookDown"),
+            VrmPreset::Happy => mean("mouthSmileLeft", "mouthSmileRight"),
+            VrmPreset::Angry => mean("browDownLeft", "browDownRight"),
+            VrmPreset::Sad => mean("mouthFrownLeft", "mouthFrownRight"),
+            VrmPreset::Relaxed => mean("mouthSmileLeft", "mouthSmileRight")
+                .min(mean("eyeSquintLeft", "eyeSquintRight")),
+            VrmPreset::Surprised => 0.5 * (w("browInnerUp") + mean("eyeWideLeft", "eyeWideRight")),
+            VrmPreset::LookUp => mean("eyeLookUpLeft", "eyeLookUpRight"),
+            VrmPreset::LookDown => mean("eyeLookDownLeft", "eyeLookDownRight"),
             VrmPreset::LookLeft => 0.5 * (w("eyeLookOutLeft") + w("eyeLookInRight")),
             VrmPreset::LookRight => 0.5 * (w("eyeLookInLeft") + w("eyeLookOutRight")),
             VrmPreset::Neutral => 0.0,
@@ -419,7 +416,7 @@ fn read_v0(v0: &Value) -> VrmInfo {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use face::names::arkit_index;
+    use face::names::{ARKIT_NAMES, arkit_index};
 
     fn arkit(pairs: &[(&str, f32)]) -> [f32; NUM_ARKIT] {
         let mut w = [0.0; NUM_ARKIT];
