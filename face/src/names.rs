@@ -164,7 +164,7 @@ pub fn arkit_sources(arkit: usize) -> &'static [usize] {
 }
 
 /// `eyeBlinkLeft` -> `eyeBlink_L`; names without a side are unchanged.
-fn arkit_to_ict_name(arkit: &str) -> String {
+pub fn arkit_to_ict_name(arkit: &str) -> String {
     if let Some(stem) = arkit.strip_suffix("Left") {
         format!("{stem}_L")
     } else if let Some(stem) = arkit.strip_suffix("Right") {

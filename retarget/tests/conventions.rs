@@ -15,16 +15,6 @@ fn load(bytes: &[u8]) -> Puppet {
     Puppet::from_slice(bytes, Path::new("test.glb"), None).expect("puppet loads")
 }
 
-fn ict_style(name: &str) -> String {
-    if let Some(stem) = name.strip_suffix("Left") {
-        format!("{stem}_L")
-    } else if let Some(stem) = name.strip_suffix("Right") {
-        format!("{stem}_R")
-    } else {
-        name.to_owned()
-    }
-}
-
 #[test]
 fn every_convention_maps_all_52() {
     let conventions: Vec<(&str, Vec<String>, Naming)> = vec![
@@ -40,7 +30,10 @@ fn every_convention_maps_all_52() {
         ),
         (
             "ICT _L/_R",
-            ARKIT_NAMES.iter().map(|s| ict_style(s)).collect(),
+            ARKIT_NAMES
+                .iter()
+                .map(|s| face::names::arkit_to_ict_name(s))
+                .collect(),
             Naming::Extras,
         ),
         (
