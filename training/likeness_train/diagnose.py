@@ -15,7 +15,7 @@ import tempfile
 import torch
 
 from .networks import Corrections, TrackParams
-from .train import TrainConfig, Trainer
+from .train import TrainConfig, Trainer, reference_translation
 
 SHAPES = ("eyeSquint_R", "eyeBlink_R", "cheekSquint_L", "jawOpen", "mouthSmile_L")
 
@@ -34,7 +34,9 @@ def weight_costs(shapes=SHAPES, batches=(3, 11, 29), values=(0.0, 0.5, 1.0)) -> 
             for v in values:
                 w = batch.weights.clone()
                 w[:, i] = v
-                params = TrackParams(w, batch.euler, batch.translation, batch.gamma)
+                # The true translation, expressed for TrackNet's reference camera.
+                translation = reference_translation(batch.translation, batch.focal, t.cfg.input_size)
+                params = TrackParams(w, batch.euler, translation, batch.gamma)
                 with torch.no_grad():
                     terms = t.losses(batch, params, truth, with_reg=False)
                 rows.setdefault((shape, v), []).append({k: float(t.cfg.weights[k] * x) for k, x in terms.items() if k in ("ph", "lm", "pa")})

@@ -58,14 +58,19 @@ class Manifest:
 
 def camera_assumptions() -> dict:
     """What the training images assumed about the camera, so inference can build the same
-    intrinsics for a crop (TrackNet predicts translation for a known focal length)."""
+    intrinsics for a crop. TrackNet's translation is for the reference field of view: for a
+    camera of focal f pixels at the input size, scale its z by f / reference_focal_px
+    (train.camera_translation)."""
     from .synthetic import SyntheticConfig
+    from .train import REFERENCE_FOV_DEG
 
     c = SyntheticConfig()
     lo, hi = c.fov_deg_range
     return {
         "fov_deg_range": [lo, hi],
         "nominal_fov_deg": 0.5 * (lo + hi),
+        "translation_reference_fov_deg": REFERENCE_FOV_DEG,
+        "translation_for_focal_f": "t_z * f / reference_focal_px, t_x and t_y unchanged; reference_focal_px = 0.5 * input_size / tan(fov / 2)",
         "principal_point": "crop centre (training jitter 1% of the size)",
         "face_fill": c.face_fill,
         "units": "translation in cm, camera looks down -z (OpenGL convention)",

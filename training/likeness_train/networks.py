@@ -213,8 +213,10 @@ class TrackNet(nn.Module):
         rotation_scale: float = 1.0,
         translation_scale: float = 10.0,
         w_gain: float = 1.0,
+        w_grad_scale: float = 1.0,
     ):
         super().__init__()
+        self.w_grad_scale = w_grad_scale
         self.encoder = ResNet18Encoder(width)
         self.fc = nn.Sequential(nn.Linear(self.encoder.out_features, hidden), nn.ReLU(inplace=True))
         self.head = nn.Linear(hidden, NUM_BLENDSHAPES + 3 + 3 + 27)
@@ -235,7 +237,14 @@ class TrackNet(nn.Module):
         self.register_buffer("gamma_prior", gamma_prior.float().clone())
 
     def forward(self, images: torch.Tensor) -> TrackParams:
-        raw = self.head(self.fc(self.encoder(images)))
+        hidden = self.fc(self.encoder(images))
+        raw = self.head(hidden)
+        if self.training and self.w_grad_scale != 1.0:
+            # Same values; the gradient that w sends into the shared trunk is scaled (see
+            # train.TrainConfig.track_w_grad_scale). Only training sees it, so exports do not.
+            scaled = hidden.detach() + self.w_grad_scale * (hidden - hidden.detach())
+            w_raw = nn.functional.linear(scaled, self.head.weight[:NUM_BLENDSHAPES], self.head.bias[:NUM_BLENDSHAPES])
+            raw = torch.cat([w_raw, raw[:, NUM_BLENDSHAPES:]], dim=1)
         w = torch.sigmoid(self.w_gain * raw[:, :NUM_BLENDSHAPES])
         euler = self.rotation_scale * raw[:, NUM_BLENDSHAPES : NUM_BLENDSHAPES + 3]
         translation = self.translation_prior + self.translation_scale * raw[:, NUM_BLENDSHAPES + 3 : NUM_BLENDSHAPES + 6]

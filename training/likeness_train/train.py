@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -40,8 +41,16 @@ class TrainConfig:
     track_rotation_scale: float = 1.0
     track_translation_scale: float = 10.0
     track_w_gain: float = 1.0
+    # How much more the w outputs' gradient counts in TrackNet's shared trunk than it would.
+    # At the truth a blendshape's gradient is ~1e-3 of the pose outputs' (README, "Expression
+    # signal"), so the trunk learnt pose features only and w stayed uncorrelated with the truth.
+    track_w_grad_scale: float = 1.0
     people_per_batch: int = 4
     frames: int = 4  # N, as the paper
+    # Stage 0 (not in the paper, 0 = off): TrackNet alone on L_lm + L_reg with the template
+    # shape, no rendering and no ModelNet (~8x cheaper per image), before stage 1. It gives
+    # the expression outputs landmark-driven features before the photometric term joins.
+    landmark_warmup_steps: int = 0
     stage1_steps: int = 4000
     stage2_steps: int = 1000
     # The paper's are 1e-4 and 1e-5 (for a ResNet-18 it presumably initialised from
@@ -50,6 +59,11 @@ class TrainConfig:
     # Stage 2 keeps the paper's 10x drop.
     lr_stage1: float = 3e-4
     lr_stage2: float = 3e-5
+    # Stage 1 keeps lr_stage1 until this fraction of its steps, then follows a cosine down to
+    # lr_final_ratio x lr_stage1 (1.0 = constant, as the paper states it). A constant rate
+    # left the landmark loss at a noise floor (~20 px^2, training/README.md, "Learning rate").
+    lr_decay_from: float = 0.5
+    lr_final_ratio: float = 0.02
     seed: int = 1
     expression_corrections: bool = True  # dS_i (row B of the ablation)
     dynamic_albedo: bool = True  # dR_i (row C)
@@ -89,17 +103,20 @@ class Trainer:
         self.track = TrackNet(
             width=config.track_width, gamma_prior=gamma_prior, rotation_scale=config.track_rotation_scale,
             translation_scale=config.track_translation_scale, w_gain=config.track_w_gain,
+            w_grad_scale=config.track_w_grad_scale,
         )
         self.modelnet = ModelNet(input_size=config.input_size, width=config.model_width)
         # R_0^t: the trainable mean albedo, initialised with R_0 (paper, eq. (3)).
         self.mean_albedo = nn.Parameter(self.region.mean_albedo_face.clone())
         self.step = 0
-        self.stage = 1
+        self.stage = 0 if config.landmark_warmup_steps > 0 else 1
         self.optimizer = self._optimizer()
         self.started = time.time()
         self.elapsed_before = 0.0
 
     def _optimizer(self) -> torch.optim.Optimizer:
+        if self.stage == 0:
+            return torch.optim.Adam(self.track.parameters(), lr=self.cfg.lr_stage1)
         if self.stage == 1:
             params = list(self.track.parameters()) + list(self.modelnet.parameters()) + [self.mean_albedo]
             return torch.optim.Adam(params, lr=self.cfg.lr_stage1)
@@ -144,6 +161,22 @@ class Trainer:
         self.started = time.time()
         return True
 
+    def learning_rate(self) -> float:
+        """The stage's learning rate at the current step (a pure function of the step, so a
+        resumed run follows the same schedule)."""
+        if self.stage == 2:
+            return self.cfg.lr_stage2
+        if self.stage == 0:
+            return self.cfg.lr_stage1
+        return stage1_learning_rate(self.step - self.cfg.landmark_warmup_steps, self.cfg)
+
+    def data_index(self) -> int:
+        """Which batch the current step reads: stages 1 and 2 read the same batches with or
+        without a warm-up (the warm-up re-reads the first ones)."""
+        if self.stage == 0:
+            return self.step
+        return self.step - self.cfg.landmark_warmup_steps
+
     def elapsed(self) -> float:
         return self.elapsed_before + time.time() - self.started
 
@@ -183,8 +216,31 @@ class Trainer:
         frames = batch.people * batch.frames
         return {k: v / (batch.people if k in ("sd", "bg") else frames) for k, v in terms.items()}
 
+    def warmup_step(self, batch: Batch) -> dict[str, float]:
+        """Stage 0: L_lm + L_reg of TrackNet's w and pose on the template shape
+        S_0 + sum_i w_i (S_i - S_0) at the 68 landmark vertices only."""
+        self.track.train()
+        params = self.track(self.normalise(batch.images))
+        idx = self.region.landmarks_68
+        neutral = self.region.neutral[idx]
+        deltas = self.region.expression_deltas[:, idx]
+        points = neutral + torch.einsum("bi,ivc->bvc", params.w, deltas)
+        cx, cy = batch.principal[:, 0], batch.principal[:, 1]
+        translation = camera_translation(params.translation, batch.focal, self.cfg.input_size)
+        landmarks, _ = R.project(points, R.euler_to_matrix(params.euler), translation, batch.focal, cx, cy)
+        frames = batch.people * batch.frames
+        terms = {"lm": L.landmark_loss(batch.landmarks, landmarks) / frames, "reg": L.regularization_loss(params.w, params.gamma) / frames}
+        total = sum(self.cfg.weights[k] * v for k, v in terms.items())
+        self.optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        self.optimizer.step()
+        self.step += 1
+        return {"total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+
     def train_step(self) -> dict[str, float]:
-        batch = self.data.batch(self.step, self.cfg.people_per_batch)
+        batch = self.data.batch(self.data_index(), self.cfg.people_per_batch)
+        if self.stage == 0:
+            return self.warmup_step(batch)
         frozen_tracking = self.stage == 2
         self.track.train(not frozen_tracking)
         self.modelnet.train()
@@ -218,15 +274,23 @@ class Trainer:
         self.out.mkdir(parents=True, exist_ok=True)
         log = (self.out / "log.jsonl").open("a")
         last_save = time.time()
-        total_steps = self.cfg.stage1_steps + self.cfg.stage2_steps
+        warmup = self.cfg.landmark_warmup_steps
+        total_steps = warmup + self.cfg.stage1_steps + self.cfg.stage2_steps
         while self.step < total_steps:
-            if self.stage == 1 and self.step >= self.cfg.stage1_steps:
+            if self.stage == 0 and self.step >= warmup:
+                self.stage = 1
+                self.optimizer = self._optimizer()
+                self.save()
+            if self.stage == 1 and self.step >= warmup + self.cfg.stage1_steps:
                 self.stage = 2
                 self.optimizer = self._optimizer()
                 self.save()
             t0 = time.time()
+            lr = self.learning_rate()
+            for group in self.optimizer.param_groups:
+                group["lr"] = lr
             values = self.train_step()
-            values.update(step=self.step, stage=self.stage, step_s=round(time.time() - t0, 3), elapsed_s=round(self.elapsed(), 1))
+            values.update(lr=lr, step=self.step, stage=self.stage, step_s=round(time.time() - t0, 3), elapsed_s=round(self.elapsed(), 1))
             if self.step % log_every == 0 or self.step == total_steps:
                 line = json.dumps(values)
                 print(line, flush=True)
@@ -236,6 +300,46 @@ class Trainer:
                 self.save()
                 last_save = time.time()
         self.save()
+
+
+def stage1_learning_rate(step: int, cfg: TrainConfig) -> float:
+    start = int(cfg.lr_decay_from * cfg.stage1_steps)
+    if step < start or cfg.stage1_steps <= start:
+        return cfg.lr_stage1
+    progress = min(1.0, (step - start) / (cfg.stage1_steps - start))
+    low = cfg.lr_stage1 * cfg.lr_final_ratio
+    return low + 0.5 * (cfg.lr_stage1 - low) * (1.0 + math.cos(math.pi * progress))
+
+
+# TrackNet's translation is for a camera of this field of view (the middle of the synthetic
+# cameras' 25-40 degrees). An image does not show its focal length: a face of the same pixel
+# size is ~1.6x farther at 25 than at 40 degrees, so a translation predicted for the true
+# camera is a guess whose error scales every projected landmark (by up to +-25 %; this was
+# the ~4 px landmark floor of the first runs). For a camera of focal f the distance t_z is
+# scaled by f / f_ref (t_x, t_y stay): the face's centre then projects to the same pixel
+# under both cameras, every other point to first order in its depth / the distance.
+REFERENCE_FOV_DEG = 32.5
+
+
+def reference_focal(size: int) -> float:
+    """f_ref in pixels for a square input of `size` pixels."""
+    return 0.5 * size / math.tan(math.radians(0.5 * REFERENCE_FOV_DEG))
+
+
+def camera_translation(translation: torch.Tensor, focal: torch.Tensor, size: int) -> torch.Tensor:
+    """TrackNet's translation [B, 3] (for f_ref) -> the translation for cameras of focal
+    `focal` [B] pixels."""
+    scale = torch.ones_like(translation)
+    scale[:, 2] = focal / reference_focal(size)
+    return translation * scale
+
+
+def reference_translation(translation: torch.Tensor, focal: torch.Tensor, size: int) -> torch.Tensor:
+    """The inverse of `camera_translation`: a camera's translation expressed for f_ref (what
+    TrackNet should predict for a frame whose true translation is `translation`)."""
+    scale = torch.ones_like(translation)
+    scale[:, 2] = reference_focal(size) / focal
+    return translation * scale
 
 
 def normalise(images: torch.Tensor) -> torch.Tensor:
@@ -276,11 +380,12 @@ def render_prediction(
     albedo = region.albedo(params.w, c.dR0, c.dR, mean_albedo=mean_albedo)
     rotation = R.euler_to_matrix(params.euler)
     cx, cy = batch.principal[:, 0], batch.principal[:, 1]
+    translation = camera_translation(params.translation, batch.focal, size)
     out = R.render(
-        shape, region.triangles.long(), corner_uv, albedo, params.gamma, rotation, params.translation,
+        shape, region.triangles.long(), corner_uv, albedo, params.gamma, rotation, translation,
         batch.focal, cx, cy, size, size, parsing_texture=parsing_texture,
     )
-    landmarks, _ = R.project(region.landmarks(shape), rotation, params.translation, batch.focal, cx, cy)
+    landmarks, _ = R.project(region.landmarks(shape), rotation, translation, batch.focal, cx, cy)
     return Prediction(shape, albedo, rotation, landmarks, out)
 
 
@@ -288,9 +393,9 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True)
     defaults = TrainConfig()
-    for name in ("input_size", "people_per_batch", "frames", "stage1_steps", "stage2_steps", "seed", "threads"):
+    for name in ("input_size", "people_per_batch", "frames", "landmark_warmup_steps", "stage1_steps", "stage2_steps", "seed", "threads"):
         parser.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(defaults, name))
-    for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "checkpoint_every_s", "track_rotation_scale", "track_translation_scale", "track_w_gain"):
+    for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "lr_decay_from", "lr_final_ratio", "checkpoint_every_s", "track_rotation_scale", "track_translation_scale", "track_w_gain", "track_w_grad_scale"):
         parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(defaults, name))
     for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
         parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")

@@ -163,7 +163,7 @@ def test_loss_balance_at_the_truth(tmp_path):
     regularisers and cheaper in total than a wrong expression: otherwise training prefers
     zero corrections and lets w absorb the person (what the first full run did)."""
     from likeness_train.networks import Corrections, TrackParams
-    from likeness_train.train import TrainConfig, Trainer
+    from likeness_train.train import TrainConfig, Trainer, reference_translation
 
     torch.set_flush_denormal(True)
     trainer = Trainer(TrainConfig(people_per_batch=1, frames=2), tmp_path)
@@ -173,7 +173,8 @@ def test_loss_balance_at_the_truth(tmp_path):
     truth = Corrections(person.dS0[None], person.dS[None], person.dR0[None], person.dR[None])
 
     def total(w, corrections):
-        params = TrackParams(w, batch.euler, batch.translation, batch.gamma)
+        translation = reference_translation(batch.translation, batch.focal, trainer.cfg.input_size)
+        params = TrackParams(w, batch.euler, translation, batch.gamma)
         with torch.no_grad():
             terms = trainer.losses(batch, params, corrections, with_reg=False)
         data = sum(weights[k] * float(terms[k]) for k in ("ph", "lm", "pa"))

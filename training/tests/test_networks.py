@@ -77,3 +77,35 @@ def test_track_net_output_scales_scale_outputs_and_their_gradients():
     assert torch.allclose(b.w, torch.sigmoid(4.0 * raw_w), atol=1e-5)
     # Untrained w still starts near 0 whatever the gain.
     assert TrackNet(width=0.25, w_gain=4.0).eval()(x).w.max() < 0.05
+
+
+def test_track_net_w_grad_scale_scales_only_the_trunk_gradient_of_w():
+    """Forward values are unchanged; the trunk receives the w outputs' gradient times s and
+    the pose outputs' gradient unchanged; the head's own gradient is unchanged."""
+    torch.manual_seed(0)
+    x = torch.randn(3, 3, 64, 64)
+    base = TrackNet(width=0.25).train()
+    scaled = TrackNet(width=0.25, w_grad_scale=7.0).train()
+    with torch.no_grad():
+        base.head.weight.normal_(0, 0.05)
+    scaled.load_state_dict(base.state_dict())
+
+    def grads(net, part):
+        net.zero_grad()
+        p = net(x)
+        (p.w.sum() if part == "w" else p.euler.sum()).backward()
+        return net.fc[0].weight.grad.clone(), net.head.weight.grad.clone()
+
+    # BatchNorm in train mode: both nets see the same batch, so the forward values agree.
+    assert torch.allclose(base(x).w, scaled(x).w, atol=1e-6)
+    trunk_b, head_b = grads(base, "w")
+    trunk_s, head_s = grads(scaled, "w")
+    assert torch.allclose(trunk_s, 7.0 * trunk_b, rtol=1e-4, atol=1e-5 * float(trunk_s.abs().max()))
+    assert torch.allclose(head_s, head_b, rtol=1e-4, atol=1e-5 * float(head_b.abs().max()))
+    trunk_b, _ = grads(base, "pose")
+    trunk_s, _ = grads(scaled, "pose")
+    assert torch.allclose(trunk_s, trunk_b, rtol=1e-4, atol=1e-5 * float(trunk_b.abs().max()))
+    # Eval mode (and so the ONNX export) has no scaling path at all.
+    scaled.eval()
+    base.eval()
+    assert torch.allclose(base(x).w, scaled(x).w, atol=1e-6)

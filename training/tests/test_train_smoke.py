@@ -83,3 +83,35 @@ def test_oracle_identity_uses_the_true_identity_offset(tmp_path):
     expected = L.smoothness_loss(trainer.region.sample_uv(true_dS0), trainer.edges, reduction=trainer.cfg.sd_reduction) / people
     assert values["sd"] == pytest.approx(float(expected), rel=1e-5)
     assert float(expected) > 0
+
+
+def test_landmark_warmup_trains_tracknet_alone_then_runs_the_two_stages(tmp_path):
+    """Stage 0 changes TrackNet only and its loss is L_lm + L_reg with the template shape:
+    recomputed here from the template's landmark vertices directly."""
+    from likeness_train import losses as L
+    from likeness_train import render as R
+    from likeness_train.train import camera_translation, normalise
+
+    trainer = Trainer(_config(landmark_warmup_steps=2, stage1_steps=1, stage2_steps=1), tmp_path / "w")
+    assert trainer.stage == 0 and trainer.data_index() == 0
+    model_before = {k: v.clone() for k, v in trainer.modelnet.state_dict().items()}
+    track_before = {k: v.clone() for k, v in trainer.track.state_dict().items()}
+    batch = trainer.data.batch(0, 1)
+    trainer.track.train()
+    with torch.no_grad():
+        p = trainer.track(normalise(batch.images))
+        shape = trainer.region.shape(p.w)  # equation (2) without corrections
+        translation = camera_translation(p.translation, batch.focal, trainer.cfg.input_size)
+        lm, _ = R.project(trainer.region.landmarks(shape), R.euler_to_matrix(p.euler), translation, batch.focal, batch.principal[:, 0], batch.principal[:, 1])
+        expected = float(L.landmark_loss(batch.landmarks, lm)) / 2
+    trainer.track.load_state_dict(track_before)  # undo the batch-norm statistics update
+    values = trainer.train_step()
+    assert set(values) == {"total", "lm", "reg"}
+    assert values["lm"] == pytest.approx(expected, rel=1e-4)
+    assert all(torch.equal(v, model_before[k]) for k, v in trainer.modelnet.state_dict().items())
+    assert any(not torch.equal(v, track_before[k]) for k, v in trainer.track.state_dict().items())
+    trainer.run(log_every=1)
+    assert trainer.step == 4 and trainer.stage == 2
+    # Stage 1 reads batch 0 again: its data do not depend on the warm-up length.
+    assert trainer.data_index() == 2
+    assert any(not torch.equal(v, model_before[k]) for k, v in trainer.modelnet.state_dict().items())

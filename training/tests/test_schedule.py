@@ -1,0 +1,55 @@
+"""The stage-1 learning-rate schedule against its closed form."""
+
+import math
+
+import pytest
+
+from likeness_train.train import TrainConfig, stage1_learning_rate
+
+
+def test_constant_then_cosine_to_the_final_ratio():
+    cfg = TrainConfig(stage1_steps=1000, lr_stage1=3e-4, lr_decay_from=0.5, lr_final_ratio=0.02)
+    low = 3e-4 * 0.02
+    assert stage1_learning_rate(0, cfg) == 3e-4
+    assert stage1_learning_rate(499, cfg) == 3e-4
+    assert stage1_learning_rate(500, cfg) == pytest.approx(3e-4)
+    # Halfway through the decay the cosine is at the mean of the two ends.
+    assert stage1_learning_rate(750, cfg) == pytest.approx((3e-4 + low) / 2)
+    assert stage1_learning_rate(600, cfg) == pytest.approx(low + 0.5 * (3e-4 - low) * (1 + math.cos(math.pi * 0.2)))
+    assert stage1_learning_rate(1000, cfg) == pytest.approx(low)
+    rates = [stage1_learning_rate(s, cfg) for s in range(1001)]
+    assert all(a >= b for a, b in zip(rates, rates[1:])), "never increases"
+
+
+def test_decay_from_one_is_the_papers_constant_rate():
+    cfg = TrainConfig(stage1_steps=800, lr_stage1=1e-4, lr_decay_from=1.0)
+    assert {stage1_learning_rate(s, cfg) for s in range(0, 801, 50)} == {1e-4}
+
+
+def test_camera_translation_round_trips_and_keeps_the_projection():
+    """TrackNet's translation is for f_ref: scaled to a camera of focal f it projects a face
+    where the true camera does, up to the perspective of the face's own depth."""
+    import torch
+
+    from likeness_train import render as R
+    from likeness_train.train import camera_translation, reference_focal, reference_translation
+
+    size = 128
+    focal = torch.tensor([176.0, 219.0, 289.0])
+    true_t = torch.tensor([[1.0, -2.0, -50.0], [0.5, 0.5, -62.0], [-1.0, 1.5, -81.0]])
+    ref_t = reference_translation(true_t, focal, size)
+    assert torch.allclose(camera_translation(ref_t, focal, size), true_t, atol=1e-5)
+    assert torch.equal(ref_t[:, :2], true_t[:, :2]), "only the distance depends on the camera"
+    # The reference camera with the reference translation sees the face's centre plane as
+    # the true camera does; a point 5 cm in front of it moves by depth/distance to first order.
+    eye = torch.eye(3).expand(3, 3, 3)
+    centre = torch.tensor([[[3.0, 4.0, 0.0]]]).expand(3, 1, 3)
+    at_ref, _ = R.project(centre, eye, ref_t, reference_focal(size), 64.0, 64.0)
+    at_true, _ = R.project(centre, eye, true_t, focal, 64.0, 64.0)
+    assert torch.allclose(at_ref, at_true, atol=1e-3)
+    nose = torch.tensor([[[3.0, 4.0, 5.0]]]).expand(3, 1, 3)
+    at_ref, _ = R.project(nose, eye, ref_t, reference_focal(size), 64.0, 64.0)
+    at_true, _ = R.project(nose, eye, true_t, focal, 64.0, 64.0)
+    offset = (at_true - 64.0).norm(dim=-1)
+    assert ((at_ref - at_true).norm(dim=-1) < 0.1 * offset).all()
+    assert reference_focal(size) == pytest.approx(0.5 * size / math.tan(math.radians(16.25)))
