@@ -216,6 +216,15 @@ class Trainer:
         frames = batch.people * batch.frames
         return {k: v / (batch.people if k in ("sd", "bg") else frames) for k, v in terms.items()}
 
+    def _optimise(self, terms: dict[str, torch.Tensor]) -> dict[str, float]:
+        """One Adam step on the weighted sum of the loss terms; returns the logged values."""
+        total = sum(self.cfg.weights[k] * v for k, v in terms.items())
+        self.optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        self.optimizer.step()
+        self.step += 1
+        return {"total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+
     def warmup_step(self, batch: Batch) -> dict[str, float]:
         """Stage 0: L_lm + L_reg of TrackNet's w and pose on the template shape
         S_0 + sum_i w_i (S_i - S_0) at the 68 landmark vertices only."""
@@ -230,12 +239,7 @@ class Trainer:
         landmarks, _ = R.project(points, R.euler_to_matrix(params.euler), translation, batch.focal, cx, cy)
         frames = batch.people * batch.frames
         terms = {"lm": L.landmark_loss(batch.landmarks, landmarks) / frames, "reg": L.regularization_loss(params.w, params.gamma) / frames}
-        total = sum(self.cfg.weights[k] * v for k, v in terms.items())
-        self.optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        self.optimizer.step()
-        self.step += 1
-        return {"total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+        return self._optimise(terms)
 
     def train_step(self) -> dict[str, float]:
         batch = self.data.batch(self.data_index(), self.cfg.people_per_batch)
@@ -254,12 +258,7 @@ class Trainer:
             first = batch.index * batch.people
             corrections.dS0 = torch.stack([self.synthetic.people.person(first + p).dS0 for p in range(batch.people)])
         terms = self.losses(batch, params, corrections, with_reg=not frozen_tracking)
-        total = sum(self.cfg.weights[k] * v for k, v in terms.items())
-        self.optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        self.optimizer.step()
-        self.step += 1
-        return {"total": float(total.detach()), **{k: float(v.detach()) for k, v in terms.items()}}
+        return self._optimise(terms)
 
     def predict_model_only(self, batch: Batch) -> tuple[None, Corrections]:
         size = self.cfg.input_size
@@ -409,6 +408,14 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     )
     args = vars(parser.parse_args(argv))
     out = args.pop("out")
+    # `not (a <= x <= b)` also rejects NaN.
+    checks = {
+        "landmark_warmup_steps": (0, float("inf")), "stage1_steps": (0, float("inf")), "stage2_steps": (0, float("inf")),
+        "lr_decay_from": (0.0, 1.0), "lr_final_ratio": (0.0, 1.0), "track_w_grad_scale": (1e-6, 1e6),
+    }
+    for name, (low, high) in checks.items():
+        if not (low <= args[name] <= high):
+            parser.error(f"--{name.replace('_', '-')} {args[name]}: must be within [{low}, {high}]")
     weights = dict(defaults.weights)
     for item in args.pop("weight"):
         term, _, value = item.partition("=")

@@ -53,3 +53,15 @@ def test_camera_translation_round_trips_and_keeps_the_projection():
     offset = (at_true - 64.0).norm(dim=-1)
     assert ((at_ref - at_true).norm(dim=-1) < 0.1 * offset).all()
     assert reference_focal(size) == pytest.approx(0.5 * size / math.tan(math.radians(16.25)))
+
+
+@pytest.mark.parametrize(
+    "flag",
+    [["--lr-decay-from", "1.5"], ["--lr-final-ratio", "nan"], ["--landmark-warmup-steps", "-1"], ["--track-w-grad-scale", "0"]],
+)
+def test_schedule_flags_out_of_range_are_refused_by_name(flag, capsys):
+    from likeness_train.train import config_from_args
+
+    with pytest.raises(SystemExit):
+        config_from_args(["--out", "x", *flag])
+    assert flag[0] in capsys.readouterr().err
