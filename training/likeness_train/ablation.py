@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from .evaluate import METRIC_KEYS
+from .train import TrainConfig
 
 ROWS: dict[str, tuple[str, list[str]]] = {
     "A": ("3DMM prior (identity corrections dS_0, dR_0 only)", ["--no-expression-corrections", "--no-dynamic-albedo", "--no-parsing-loss", "--no-gradient-loss"]),
@@ -63,26 +65,53 @@ def _read_results(path: Path) -> dict:
         raise SystemExit(f"cannot read evaluation results {path}: {e}") from None
 
 
-def _matches(results: dict, stage1: int, stage2: int, row: str, people: int) -> bool:
+def _matches(results: dict, stage1: int, stage2: int, row: str, people: int, warmup_steps: int) -> bool:
     """A stored row counts only if it was trained with this budget, this row's flags and the
     same loss normalisation, and evaluated on as many people."""
     from .train import config_from_args
 
     cfg = results.get("config", {})
-    expected, _ = config_from_args(["--out", "x", "--stage1-steps", str(stage1), "--stage2-steps", str(stage2), *ROWS[row][1]])
-    keys = ("stage1_steps", "stage2_steps", "expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss", "input_size", "track_width", "model_width", "sd_reduction", "bg_reduction", "weights")
+    budget = ["--stage1-steps", str(stage1), "--stage2-steps", str(stage2), "--landmark-warmup-steps", str(warmup_steps)]
+    expected, _ = config_from_args(["--out", "x", *budget, *ROWS[row][1]])
+    keys = ("stage1_steps", "stage2_steps", "expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss", "input_size", "track_width", "model_width", "sd_reduction", "bg_reduction", "weights",
+            "landmark_warmup_steps", "warmup_lr_decay", "warmup_supervision", "track_pool")
     return all(cfg.get(k) == getattr(expected, k) for k in keys) and results.get("evaluation", {}).get("people") == people
 
 
-def train_and_evaluate(row: str, runs: Path, common: list[str], people: int, stored: Path, stage1: int, stage2: int) -> dict:
+def start_from_warmup(out: Path, warmup: Path, warmup_steps: int) -> None:
+    """Puts a finished landmark warm-up (train.WARMUP_CHECKPOINT of any run with the same
+    warm-up) in a row's directory, so the row resumes at stage 1: the warm-up trains TrackNet
+    alone and does not depend on the row's flags, so the rows need not repeat it."""
+    import torch
+
+    if (out / "checkpoint.pt").exists():
+        return
+    try:
+        state = torch.load(warmup, map_location="cpu", weights_only=False)
+    except Exception as e:  # noqa: BLE001 - any unreadable file is the same error for the user
+        raise SystemExit(f"cannot read the warm-up checkpoint {warmup}: {e}") from None
+    # Stage 0 at its last step, or stage 1 before its first step (what runs from before
+    # train.WARMUP_CHECKPOINT saved at the switch): the same networks either way.
+    if not isinstance(state, dict) or state.get("stage") not in (0, 1) or state.get("step") != warmup_steps:
+        found = (state.get("stage"), state.get("step")) if isinstance(state, dict) else type(state).__name__
+        raise SystemExit(f"{warmup} is not the end of a {warmup_steps}-step warm-up (stage, step = {found})")
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(warmup, out / "checkpoint.pt")
+
+
+def train_and_evaluate(
+    row: str, runs: Path, common: list[str], people: int, stored: Path, stage1: int, stage2: int, warmup: Path | None = None, warmup_steps: int = 0
+) -> dict:
     """Trains and evaluates one row, or reuses its stored results (committed with the
     repository, so a row survives the machine it was trained on)."""
     if stored.exists():
         results = _read_results(stored)
-        if _matches(results, stage1, stage2, row, people):
+        if _matches(results, stage1, stage2, row, people, warmup_steps):
             print(f"row {row}: using {stored}", flush=True)
             return results
     out = runs / row
+    if warmup is not None:
+        start_from_warmup(out, warmup, warmup_steps)
     python = sys.executable
     _run([python, "-m", "likeness_train.train", "--out", str(out), *common, *ROWS[row][1]])
     checkpoint, results = out / "checkpoint.pt", out / "results.json"
@@ -137,6 +166,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rows", default=",".join(ROWS), help="comma-separated subset of " + ",".join(ROWS))
     parser.add_argument("--stage1-steps", type=int, default=800)
     parser.add_argument("--stage2-steps", type=int, default=200)
+    parser.add_argument("--landmark-warmup-steps", type=int, default=TrainConfig().landmark_warmup_steps)
+    parser.add_argument("--warmup-from", type=Path, default=None, help="the full run's warm-up (RUN/warmup.pt): the rows start at stage 1 from it")
     parser.add_argument("--data", type=str, default=None, help="cache directory (see dataset.py)")
     parser.add_argument("--people", type=int, default=40, help="held-out people to evaluate on")
     parser.add_argument("--full", type=Path, default=None, help="results.json of the full training run, added as the last row")
@@ -145,14 +176,18 @@ def main(argv: list[str] | None = None) -> None:
     unknown = [r for r in rows if r not in ROWS]
     if unknown:
         raise SystemExit(f"unknown ablation row(s) {unknown}; known: {list(ROWS)}")
-    common = ["--stage1-steps", str(args.stage1_steps), "--stage2-steps", str(args.stage2_steps)]
+    if args.landmark_warmup_steps < 0:
+        raise SystemExit(f"--landmark-warmup-steps {args.landmark_warmup_steps}: must be >= 0")
+    common = ["--stage1-steps", str(args.stage1_steps), "--stage2-steps", str(args.stage2_steps), "--landmark-warmup-steps", str(args.landmark_warmup_steps)]
     if args.data:
         common += ["--data", args.data]
     t0 = time.time()
     collected = []
     for row in rows:
         stored = args.out.parent / "ablation" / f"{row}.json"
-        results = train_and_evaluate(row, args.runs, common, args.people, stored, args.stage1_steps, args.stage2_steps)
+        results = train_and_evaluate(
+            row, args.runs, common, args.people, stored, args.stage1_steps, args.stage2_steps, args.warmup_from, args.landmark_warmup_steps
+        )
         collected.append((row, ROWS[row][0], results))
     if args.full is not None:
         results = _read_results(args.full)

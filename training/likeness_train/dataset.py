@@ -40,6 +40,8 @@ import torch.nn.functional as F
 from .data import Batch, SyntheticData
 
 LAYOUT_VERSION = 1
+# What synthetic.SyntheticPeople draws; a cache of another version holds other data.
+SYNTHETIC_VERSION = 2
 UNCOVERED = 255  # parsing label of pixels no triangle covers (an all-zero soft vector)
 FLOAT_KEYS = ("landmarks", "weights", "euler", "translation", "gamma", "focal", "principal", "identity_coeffs")
 
@@ -55,6 +57,8 @@ class CacheSpec:
     image_size: int
     batches_per_shard: int = 64
     version: int = LAYOUT_VERSION
+    # Missing from caches written before it existed, which hold version 1.
+    synthetic_version: int = SYNTHETIC_VERSION
 
     def shards(self) -> int:
         return -(-self.batches // self.batches_per_shard)
@@ -148,7 +152,7 @@ def write_cache(directory: Path, spec: CacheSpec, workers: int = 2) -> int:
     directory.mkdir(parents=True, exist_ok=True)
     manifest = directory / "manifest.json"
     if manifest.exists():
-        existing = json.loads(manifest.read_text())
+        existing = {"synthetic_version": 1, **json.loads(manifest.read_text())}
         if {k: v for k, v in existing.items() if k != "batches"} != {k: v for k, v in asdict(spec).items() if k != "batches"}:
             raise SystemExit(f"{directory} holds a different cache ({existing}); use another --out")
         # Growing a cache is allowed (more batches, same content for the existing ones),
@@ -188,9 +192,13 @@ class CachedData:
         manifest = self.directory / "manifest.json"
         if not manifest.is_file():
             raise FileNotFoundError(f"{manifest} not found; write the cache with `python -m likeness_train.dataset --out {self.directory} ...`")
-        self.spec = CacheSpec(**json.loads(manifest.read_text()))
+        self.spec = CacheSpec(**{"synthetic_version": 1, **json.loads(manifest.read_text())})
         if self.spec.version != LAYOUT_VERSION:
             raise ValueError(f"{self.directory} has cache layout {self.spec.version}, this code reads {LAYOUT_VERSION}; re-render it")
+        if self.spec.synthetic_version != SYNTHETIC_VERSION:
+            raise ValueError(
+                f"{self.directory} holds synthetic people of version {self.spec.synthetic_version}, this code draws version {SYNTHETIC_VERSION}; render a new cache"
+            )
         self.fallback = fallback
         self.truth = truth
         if fallback is not None:

@@ -1,14 +1,19 @@
-"""What one blendshape weight costs at the truth: `python -m likeness_train.diagnose`.
+"""Whether the losses can see expressions: `python -m likeness_train.diagnose`.
 
-For a few synthetic people (every value true: pose, light, corrections, the other weights)
-it sets one weight to 0, 0.5 and 1 and prints the weighted data terms (photometric,
-landmark, parsing) per image, averaged over the people. A shape whose row barely changes is
-one the images hardly constrain (training README, "Where it stands").
+1. What one blendshape weight costs at the truth: for a few synthetic people (every value
+   true: pose, light, corrections, the other weights) it sets one weight to 0, 0.5 and 1
+   and prints the weighted data terms (photometric, landmark, parsing) per image, averaged
+   over the people. A shape whose row barely changes is one the images hardly constrain.
+2. `--fit`: w fitted at the truth. Every value is true except w, which starts at 0.05 and
+   is fitted with Adam on the weighted data terms plus L_reg; the pooled correlation of the
+   fitted w with the truth is the most a tracker could get out of these losses (training
+   README, "Where it stands").
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 import tempfile
 
@@ -43,11 +48,41 @@ def weight_costs(shapes=SHAPES, batches=(3, 11, 29), values=(0.0, 0.5, 1.0)) -> 
     return {key: {k: sum(d[k] for d in lst) / len(lst) for k in lst[0]} for key, lst in rows.items()}
 
 
+def fit_weights_at_truth(batches=(3, 11), people: int = 2, iterations: int = 150) -> dict[str, float]:
+    """Fits w alone (everything else true) on the training losses; returns the pooled
+    correlation and MAE of the fitted w against the truth, and the MAE of predicting 0."""
+    with tempfile.TemporaryDirectory() as tmp:
+        t = Trainer(TrainConfig(people_per_batch=people, frames=4), Path(tmp))
+    truths, fitted = [], []
+    for b in batches:
+        batch = t.synthetic.batch(b, people)
+        persons = [t.synthetic.people.person(b * people + p) for p in range(people)]
+        truth = Corrections(*(torch.stack([getattr(person, k) for person in persons]) for k in ("dS0", "dS", "dR0", "dR")))
+        translation = reference_translation(batch.translation, batch.focal, t.cfg.input_size)
+        logits = torch.full_like(batch.weights, -3.0, requires_grad=True)  # sigmoid(-3) ~ 0.05
+        optimizer = torch.optim.Adam([logits], lr=0.05)
+        for _ in range(iterations):
+            params = TrackParams(torch.sigmoid(logits), batch.euler, translation, batch.gamma)
+            terms = t.losses(batch, params, truth, with_reg=True)
+            total = sum(t.cfg.weights[k] * terms[k] for k in ("ph", "lm", "pa", "reg") if k in terms)
+            optimizer.zero_grad()
+            total.backward()
+            optimizer.step()
+        truths.append(batch.weights)
+        fitted.append(torch.sigmoid(logits).detach())
+    true_w, fitted_w = torch.cat(truths), torch.cat(fitted)
+    correlation = torch.corrcoef(torch.stack([true_w.flatten(), fitted_w.flatten()]))[0, 1]
+    return {"pooled_correlation": float(correlation), "mae": float((true_w - fitted_w).abs().mean()), "zero_mae": float(true_w.abs().mean())}
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--shapes", default=",".join(SHAPES))
+    parser.add_argument("--fit", action="store_true", help="also fit w at the truth (~2 min)")
     args = parser.parse_args(argv)
     torch.set_flush_denormal(True)
+    if args.fit:
+        print("w fitted at the truth:", json.dumps(fit_weights_at_truth()))
     for (shape, v), avg in weight_costs(tuple(args.shapes.split(","))).items():
         print(f"{shape:14s} w={v:.1f} " + " ".join(f"{k}={x:8.3f}" for k, x in avg.items()) + f" sum={sum(avg.values()):8.3f}")
 

@@ -164,11 +164,22 @@ class BasicBlock(nn.Module):
         return self.relu(out + identity)
 
 
-class ResNet18Encoder(nn.Module):
-    """ResNet-18 (He et al.) with a width multiplier; torchvision's is fixed at full width."""
+TRACK_POOLS = ("avg", "flatten")
 
-    def __init__(self, width: float = 1.0):
+
+class ResNet18Encoder(nn.Module):
+    """ResNet-18 (He et al.) with a width multiplier; torchvision's is fixed at full width.
+
+    `pool="avg"` ends with ResNet's global average pool (the classification head's). Global
+    pooling discards where things are, which pose and translation regression need, so
+    `pool="flatten"` keeps the final (input/32)^2 grid and flattens it into the features."""
+
+    def __init__(self, width: float = 1.0, pool: str = "avg", input_size: int = 128):
         super().__init__()
+        if pool not in TRACK_POOLS:
+            raise ValueError(f"pool must be one of {TRACK_POOLS}, got {pool!r}")
+        if input_size % 32 != 0:
+            raise ValueError(f"ResNet-18's input size must be a multiple of 32, got {input_size}")
         c = [_ch(x, width) for x in (64, 128, 256, 512)]
         self.stem = nn.Sequential(
             nn.Conv2d(3, c[0], 7, 2, 3, bias=False), nn.BatchNorm2d(c[0]), nn.ReLU(inplace=True), nn.MaxPool2d(3, 2, 1)
@@ -180,8 +191,8 @@ class ResNet18Encoder(nn.Module):
             layers += [BasicBlock(cin, cout, stride), BasicBlock(cout, cout, 1)]
             cin = cout
         self.layers = nn.Sequential(*layers)
-        self.pool = nn.AdaptiveAvgPool2d(1)
-        self.out_features = cin
+        self.pool = nn.AdaptiveAvgPool2d(1) if pool == "avg" else nn.Identity()
+        self.out_features = cin if pool == "avg" else cin * (input_size // 32) ** 2
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         return self.pool(self.layers(self.stem(images))).flatten(1)
@@ -214,10 +225,12 @@ class TrackNet(nn.Module):
         translation_scale: float = 10.0,
         w_gain: float = 1.0,
         w_grad_scale: float = 1.0,
+        pool: str = "avg",
+        input_size: int = 128,
     ):
         super().__init__()
         self.w_grad_scale = w_grad_scale
-        self.encoder = ResNet18Encoder(width)
+        self.encoder = ResNet18Encoder(width, pool=pool, input_size=input_size)
         self.fc = nn.Sequential(nn.Linear(self.encoder.out_features, hidden), nn.ReLU(inplace=True))
         self.head = nn.Linear(hidden, NUM_BLENDSHAPES + 3 + 3 + 27)
         nn.init.zeros_(self.head.weight)
@@ -277,6 +290,8 @@ def load_networks(path) -> TrainedNetworks:
         rotation_scale=cfg.get("track_rotation_scale", 1.0),
         translation_scale=cfg.get("track_translation_scale", 10.0),
         w_gain=cfg.get("track_w_gain", 1.0),
+        pool=cfg.get("track_pool", "avg"),
+        input_size=cfg["input_size"],
     )
     model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
     track.load_state_dict(ckpt["track_net"])

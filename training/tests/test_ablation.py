@@ -38,7 +38,7 @@ def test_stored_rows_are_reused_only_for_the_same_budget_and_flags(tmp_path, mon
 
     import likeness_train.ablation as ablation
 
-    config, _ = config_from_args(["--out", "x", "--stage1-steps", "8", "--stage2-steps", "2", *ROWS["B"][1]])
+    config, _ = config_from_args(["--out", "x", "--stage1-steps", "8", "--stage2-steps", "2", "--landmark-warmup-steps", "5", *ROWS["B"][1]])
     stored = tmp_path / "B.json"
     stored.write_text(json.dumps({"config": asdict(config), "evaluation": {"people": 3}, "metrics": {}}))
 
@@ -49,11 +49,11 @@ def test_stored_rows_are_reused_only_for_the_same_budget_and_flags(tmp_path, mon
         raise Trains(args)
 
     monkeypatch.setattr(ablation, "_run", refuse)
-    assert ablation.train_and_evaluate("B", tmp_path / "runs", [], 3, stored, 8, 2)["evaluation"]["people"] == 3
-    # Another budget, another row's flags or another evaluation size must train again.
-    for row, people, s1, s2 in (("B", 3, 9, 2), ("C", 3, 8, 2), ("B", 4, 8, 2)):
+    assert ablation.train_and_evaluate("B", tmp_path / "runs", [], 3, stored, 8, 2, warmup_steps=5)["evaluation"]["people"] == 3
+    # Another budget, warm-up, another row's flags or another evaluation size must train again.
+    for row, people, s1, s2, warm in (("B", 3, 9, 2, 5), ("B", 3, 8, 2, 6), ("C", 3, 8, 2, 5), ("B", 4, 8, 2, 5)):
         with pytest.raises(Trains) as trained:
-            ablation.train_and_evaluate(row, tmp_path / "runs", [], people, stored, s1, s2)
+            ablation.train_and_evaluate(row, tmp_path / "runs", [], people, stored, s1, s2, warmup_steps=warm)
         assert "likeness_train.train" in trained.value.args[0]
 
 
@@ -77,3 +77,27 @@ def test_weight_overrides_change_one_term_and_bad_ones_are_refused(capsys):
         with pytest.raises(SystemExit):
             config_from_args(["--out", "x", "--weight", bad])
         assert "--weight" in capsys.readouterr().err
+
+
+def test_rows_start_from_a_finished_warmup_only(tmp_path):
+    import torch
+
+    from likeness_train.ablation import start_from_warmup
+
+    warmup = tmp_path / "warmup.pt"
+    torch.save({"stage": 0, "step": 5, "track_net": {}}, warmup)
+    start_from_warmup(tmp_path / "A", warmup, 5)
+    assert torch.load(tmp_path / "A" / "checkpoint.pt", weights_only=False)["step"] == 5
+    # A row that has its own checkpoint keeps it (it resumes where it was).
+    torch.save({"stage": 1, "step": 9}, tmp_path / "A" / "checkpoint.pt")
+    start_from_warmup(tmp_path / "A", warmup, 5)
+    assert torch.load(tmp_path / "A" / "checkpoint.pt", weights_only=False)["step"] == 9
+    torch.save({"stage": 1, "step": 5}, warmup)  # saved at the switch, before any stage-1 step
+    start_from_warmup(tmp_path / "C", warmup, 5)
+    for state in ({"stage": 2, "step": 5}, {"stage": 0, "step": 4}, {"stage": 1, "step": 6}):
+        torch.save(state, warmup)
+        with pytest.raises(SystemExit, match="not the end of a 5-step warm-up"):
+            start_from_warmup(tmp_path / "B", warmup, 5)
+    warmup.write_bytes(b"not a checkpoint")
+    with pytest.raises(SystemExit, match="cannot read the warm-up checkpoint"):
+        start_from_warmup(tmp_path / "B", warmup, 5)

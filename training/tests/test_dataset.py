@@ -63,8 +63,25 @@ def test_cache_resumes_and_falls_back(cache, synthetic, capsys):
         write_cache(cache, CacheSpec(**{**SPEC, "frames": 4}), workers=1)
 
 
+def test_cache_of_other_synthetic_people_is_refused(cache, synthetic, tmp_path):
+    """A cache written before `synthetic_version` existed holds version-1 people: reading
+    or growing it with this code would mix two data distributions."""
+    import json
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(cache, old)
+    manifest = json.loads((old / "manifest.json").read_text())
+    del manifest["synthetic_version"]
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="version 1"):
+        CachedData(old, fallback=synthetic)
+    with pytest.raises(SystemExit):
+        write_cache(old, CacheSpec(**SPEC), workers=1)
+
+
 def test_trainer_reads_the_cache(cache, tmp_path):
-    config = TrainConfig(people_per_batch=1, frames=2, stage1_steps=1, stage2_steps=0, track_width=0.25, model_width=0.25, data=str(cache))
+    config = TrainConfig(people_per_batch=1, frames=2, landmark_warmup_steps=0, stage1_steps=1, stage2_steps=0, track_width=0.25, model_width=0.25, data=str(cache))
     trainer = Trainer(config, tmp_path / "run")
     assert isinstance(trainer.data, CachedData)
     values = trainer.train_step()

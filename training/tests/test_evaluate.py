@@ -15,7 +15,7 @@ from likeness_train.train import TrainConfig, Trainer
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    config = TrainConfig(people_per_batch=1, frames=2, stage1_steps=1, stage2_steps=0, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
+    config = TrainConfig(people_per_batch=1, frames=2, landmark_warmup_steps=0, stage1_steps=1, stage2_steps=0, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
     trainer = Trainer(config, out)
     trainer.run(log_every=1)
     return trainer.checkpoint_path

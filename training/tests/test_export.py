@@ -1,14 +1,16 @@
 """The exported ONNX models compute what the PyTorch networks compute."""
 
+import pytest
 import torch
 
 from likeness_train.export import export_onnx, parity
 from likeness_train.networks import ModelNet, TrackNet
 
 
-def test_onnx_runtime_matches_pytorch(tmp_path):
+@pytest.mark.parametrize("pool", ["avg", "flatten"])
+def test_onnx_runtime_matches_pytorch(tmp_path, pool):
     torch.manual_seed(1)
-    track = TrackNet(width=0.25)
+    track = TrackNet(width=0.25, pool=pool)
     model = ModelNet(input_size=128, width=0.25)
     # Non-trivial heads (they start at zero) so the parity check means something.
     with torch.no_grad():

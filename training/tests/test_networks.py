@@ -57,6 +57,27 @@ def test_track_net_outputs_and_priors():
     assert parameter_count(TrackNet(width=1.0).encoder) == pytest.approx(11.18e6, rel=0.02)
 
 
+def test_track_net_flatten_pool_keeps_the_feature_grid():
+    """pool="flatten" feeds the whole final 4x4 grid (at 128 px) to the fully connected
+    layers; "avg" is its mean. The same convolution weights give the same grid, so the
+    flattened features averaged over the grid are the pooled features."""
+    torch.manual_seed(0)
+    avg = TrackNet(width=0.25, pool="avg").eval()
+    flat = TrackNet(width=0.25, pool="flatten", input_size=128).eval()
+    assert flat.encoder.out_features == 16 * avg.encoder.out_features
+    flat.encoder.load_state_dict(avg.encoder.state_dict())
+    x = torch.randn(2, 3, 128, 128)
+    with torch.no_grad():
+        grid = flat.encoder(x).view(2, avg.encoder.out_features, 16)
+        assert torch.allclose(grid.mean(-1), avg.encoder(x), atol=1e-5)
+    p = flat(x)
+    assert p.w.shape == (2, 53) and p.euler.shape == (2, 3)
+    with pytest.raises(ValueError):
+        TrackNet(width=0.25, pool="max")
+    with pytest.raises(ValueError):
+        TrackNet(width=0.25, pool="flatten", input_size=100)
+
+
 def test_track_net_output_scales_scale_outputs_and_their_gradients():
     """euler = s_r raw, translation = prior + s_t raw, w = sigmoid(g raw): the same head
     output maps to scaled pose, and the trunk receives the pose gradient times the scale."""

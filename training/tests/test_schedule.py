@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from likeness_train.train import TrainConfig, stage1_learning_rate
+from likeness_train.train import TrainConfig, stage1_learning_rate, warmup_learning_rate
 
 
 def test_constant_then_cosine_to_the_final_ratio():
@@ -24,6 +24,17 @@ def test_constant_then_cosine_to_the_final_ratio():
 def test_decay_from_one_is_the_papers_constant_rate():
     cfg = TrainConfig(stage1_steps=800, lr_stage1=1e-4, lr_decay_from=1.0)
     assert {stage1_learning_rate(s, cfg) for s in range(0, 801, 50)} == {1e-4}
+
+
+def test_warmup_rate_is_constant_unless_it_decays_like_stage_1():
+    cfg = TrainConfig(landmark_warmup_steps=400, stage1_steps=1000, lr_stage1=3e-4, lr_decay_from=0.5, lr_final_ratio=0.02, warmup_lr_decay=False)
+    assert {warmup_learning_rate(s, cfg) for s in range(0, 401, 20)} == {3e-4}
+    cfg.warmup_lr_decay = True
+    # The same closed form as stage 1, over the warm-up's own length.
+    stage1_of_warmup_length = TrainConfig(stage1_steps=400, lr_stage1=3e-4, lr_decay_from=0.5, lr_final_ratio=0.02)
+    for s in (0, 199, 200, 300, 399, 400):
+        assert warmup_learning_rate(s, cfg) == pytest.approx(stage1_learning_rate(s, stage1_of_warmup_length))
+    assert warmup_learning_rate(400, cfg) == pytest.approx(3e-4 * 0.02)
 
 
 def test_camera_translation_round_trips_and_keeps_the_projection():
@@ -57,7 +68,7 @@ def test_camera_translation_round_trips_and_keeps_the_projection():
 
 @pytest.mark.parametrize(
     "flag",
-    [["--lr-decay-from", "1.5"], ["--lr-final-ratio", "nan"], ["--landmark-warmup-steps", "-1"], ["--track-w-grad-scale", "0"]],
+    [["--lr-decay-from", "1.5"], ["--lr-final-ratio", "nan"], ["--landmark-warmup-steps", "-1"], ["--track-w-grad-scale", "0"], ["--warmup-supervision", "-1"]],
 )
 def test_schedule_flags_out_of_range_are_refused_by_name(flag, capsys):
     from likeness_train.train import config_from_args

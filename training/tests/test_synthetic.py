@@ -113,6 +113,18 @@ def test_weights_are_sparse_and_in_unit_range(frames):
     assert (active >= 3).mean() > 0.5  # several shapes at once, usually
 
 
+def test_expressions_are_dense_enough_to_learn(people):
+    """SyntheticConfig says why: each non-gaze shape is active in a tenth of the frames or
+    more on average, the jaw open (> 0.3) in about a third (talking_probability 0.4 times
+    P(beta(1.5, 2) > 0.3) ~ 0.71, plus groups)."""
+    w = np.stack([f.weights for k in range(150) for f in people.group(k, 0, 4)])
+    names = people.names
+    jaw = names.index("jawOpen")
+    assert 0.25 < (w[:, jaw] > 0.3).mean() < 0.45
+    expression = [i for i, n in enumerate(names) if not n.startswith(("eyeLook", "eyeBlink"))]
+    assert (w[:, expression] > 0.05).mean() > 0.08
+
+
 def test_poses_and_cameras_are_within_range(people, frames):
     c = people.config
     deg = np.stack([f.euler_degrees for f in frames])

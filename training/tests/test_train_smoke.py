@@ -13,7 +13,7 @@ from likeness_train.train import TrainConfig, Trainer
 
 
 def _config(**overrides):
-    base = dict(people_per_batch=1, frames=2, stage1_steps=2, stage2_steps=1, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
+    base = dict(people_per_batch=1, frames=2, landmark_warmup_steps=0, stage1_steps=2, stage2_steps=1, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
     base.update(overrides)
     return TrainConfig(**base)
 
@@ -92,7 +92,7 @@ def test_landmark_warmup_trains_tracknet_alone_then_runs_the_two_stages(tmp_path
     from likeness_train import render as R
     from likeness_train.train import camera_translation, normalise
 
-    trainer = Trainer(_config(landmark_warmup_steps=2, stage1_steps=1, stage2_steps=1), tmp_path / "w")
+    trainer = Trainer(_config(landmark_warmup_steps=2, warmup_supervision=0.0, stage1_steps=1, stage2_steps=1), tmp_path / "w")
     assert trainer.stage == 0 and trainer.data_index() == 0
     model_before = {k: v.clone() for k, v in trainer.modelnet.state_dict().items()}
     track_before = {k: v.clone() for k, v in trainer.track.state_dict().items()}
@@ -112,6 +112,30 @@ def test_landmark_warmup_trains_tracknet_alone_then_runs_the_two_stages(tmp_path
     assert any(not torch.equal(v, track_before[k]) for k, v in trainer.track.state_dict().items())
     trainer.run(log_every=1)
     assert trainer.step == 4 and trainer.stage == 2
+    # The warm-up's end is kept for the ablation rows.
+    warmup = torch.load(tmp_path / "w" / "warmup.pt", weights_only=False)
+    assert (warmup["stage"], warmup["step"]) == (0, 2)
     # Stage 1 reads batch 0 again: its data do not depend on the warm-up length.
     assert trainer.data_index() == 2
     assert any(not torch.equal(v, model_before[k]) for k, v in trainer.modelnet.state_dict().items())
+
+
+def test_warmup_supervision_adds_the_squared_error_of_w(tmp_path):
+    """--warmup-supervision lambda adds sum_i (w_i - w_i^true)^2 per image with weight
+    lambda to the warm-up only; stage 1 never sees it."""
+    from likeness_train.train import normalise
+
+    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, warmup_supervision=7.0), tmp_path / "s")
+    batch = trainer.data.batch(0, 1)
+    state = {k: v.clone() for k, v in trainer.track.state_dict().items()}
+    trainer.track.train()
+    with torch.no_grad():
+        w = trainer.track(normalise(batch.images)).w
+    trainer.track.load_state_dict(state)
+    values = trainer.train_step()
+    expected = float((w - batch.weights).pow(2).sum()) / 2
+    assert values["sup"] == pytest.approx(expected, rel=1e-4)
+    assert values["total"] == pytest.approx(values["lm"] * trainer.cfg.weights["lm"] + values["reg"] * trainer.cfg.weights["reg"] + 7.0 * expected, rel=1e-4)
+    trainer.run(log_every=1)
+    assert trainer.stage == 1
+    assert "sup" not in trainer.train_step()
