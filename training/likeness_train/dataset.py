@@ -101,6 +101,11 @@ def decode(arrays: dict[str, np.ndarray], labels: int, people: int, frames: int,
     return Batch(images=images, parsing=parsing, vertices=None, dS=None, dR0=None, dR=None, people=people, frames=frames, index=index, **floats)
 
 
+def read_spec(manifest: Path) -> CacheSpec:
+    """A cache's manifest; one written before `synthetic_version` existed holds version 1."""
+    return CacheSpec(**{"synthetic_version": 1, **json.loads(manifest.read_text())})
+
+
 def shard_complete(path: Path, spec: CacheSpec, shard: int) -> bool:
     """A shard exists under its final name only after its rename, but a file copied or
     truncated by hand is still checked: it must open and hold exactly its batch indices."""
@@ -152,7 +157,7 @@ def write_cache(directory: Path, spec: CacheSpec, workers: int = 2) -> int:
     directory.mkdir(parents=True, exist_ok=True)
     manifest = directory / "manifest.json"
     if manifest.exists():
-        existing = {"synthetic_version": 1, **json.loads(manifest.read_text())}
+        existing = asdict(read_spec(manifest))
         if {k: v for k, v in existing.items() if k != "batches"} != {k: v for k, v in asdict(spec).items() if k != "batches"}:
             raise SystemExit(f"{directory} holds a different cache ({existing}); use another --out")
         # Growing a cache is allowed (more batches, same content for the existing ones),
@@ -192,7 +197,7 @@ class CachedData:
         manifest = self.directory / "manifest.json"
         if not manifest.is_file():
             raise FileNotFoundError(f"{manifest} not found; write the cache with `python -m likeness_train.dataset --out {self.directory} ...`")
-        self.spec = CacheSpec(**{"synthetic_version": 1, **json.loads(manifest.read_text())})
+        self.spec = read_spec(manifest)
         if self.spec.version != LAYOUT_VERSION:
             raise ValueError(f"{self.directory} has cache layout {self.spec.version}, this code reads {LAYOUT_VERSION}; re-render it")
         if self.spec.synthetic_version != SYNTHETIC_VERSION:

@@ -37,6 +37,8 @@ from .networks import TRACK_POOLS, Corrections, ModelNet, TrackNet, TrackParams
 
 
 WARMUP_CHECKPOINT = "warmup.pt"  # the checkpoint at the end of stage 0, beside checkpoint.pt
+# Configuration a resumed run must share with its checkpoint (Trainer.resume).
+RESUME_KEYS = ("input_size", "track_width", "model_width", "track_pool", "people_per_batch", "frames", "landmark_warmup_steps", "seed")
 
 
 @dataclass
@@ -169,6 +171,15 @@ class Trainer:
         if not self.checkpoint_path.exists():
             return False
         state = torch.load(self.checkpoint_path, map_location="cpu", weights_only=False)
+        # These fix the networks' shapes and which batch and rate each step gets; resuming
+        # with others would fail inside load_state_dict or silently train another schedule.
+        saved = state.get("config", {})
+        for key in RESUME_KEYS:
+            if key in saved and saved[key] != getattr(self.cfg, key):
+                raise SystemExit(
+                    f"{self.checkpoint_path} was trained with {key} = {saved[key]!r}, this run asks for {getattr(self.cfg, key)!r}; "
+                    "pass the same value to resume, or use another --out"
+                )
         self.track.load_state_dict(state["track_net"])
         self.modelnet.load_state_dict(state["model_net"])
         with torch.no_grad():

@@ -139,3 +139,14 @@ def test_warmup_supervision_adds_the_squared_error_of_w(tmp_path):
     trainer.run(log_every=1)
     assert trainer.stage == 1
     assert "sup" not in trainer.train_step()
+
+
+def test_resume_refuses_a_checkpoint_of_another_schedule(tmp_path):
+    """A run without a warm-up resumed by a command with one would read batch step - K and
+    another rate schedule: refused by name instead."""
+    trainer = Trainer(_config(), tmp_path / "r")
+    trainer.save()
+    other = Trainer(_config(landmark_warmup_steps=3), tmp_path / "r")
+    with pytest.raises(SystemExit, match="landmark_warmup_steps"):
+        other.resume()
+    assert Trainer(_config(), tmp_path / "r").resume()
