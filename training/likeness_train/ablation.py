@@ -65,16 +65,19 @@ def _read_results(path: Path) -> dict:
         raise SystemExit(f"cannot read evaluation results {path}: {e}") from None
 
 
-def _matches(results: dict, stage1: int, stage2: int, row: str, people: int, warmup_steps: int) -> bool:
+def _matches(results: dict, stage1: int, stage2: int, row: str, people: int, warmup_steps: int, frozen_steps: int | None = None) -> bool:
     """A stored row counts only if it was trained with this budget, this row's flags and the
     same loss normalisation, and evaluated on as many people."""
     from .train import config_from_args
 
     cfg = results.get("config", {})
     budget = ["--stage1-steps", str(stage1), "--stage2-steps", str(stage2), "--landmark-warmup-steps", str(warmup_steps)]
+    if frozen_steps is not None:
+        budget += ["--stage1-track-frozen-steps", str(frozen_steps)]
     expected, _ = config_from_args(["--out", "x", *budget, *ROWS[row][1]])
     keys = ("stage1_steps", "stage2_steps", "expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss", "input_size", "track_width", "model_width", "sd_reduction", "bg_reduction", "weights",
-            "landmark_warmup_steps", "warmup_lr_decay", "warmup_supervision", "track_pool")
+            "landmark_warmup_steps", "warmup_lr_decay", "warmup_supervision", "warmup_light_supervision", "track_pool",
+            "stage1_track_frozen_steps", "stage1_track_lr_ratio", "stage1_supervision")
     return all(cfg.get(k) == getattr(expected, k) for k in keys) and results.get("evaluation", {}).get("people") == people
 
 
@@ -100,13 +103,14 @@ def start_from_warmup(out: Path, warmup: Path, warmup_steps: int) -> None:
 
 
 def train_and_evaluate(
-    row: str, runs: Path, common: list[str], people: int, stored: Path, stage1: int, stage2: int, warmup: Path | None = None, warmup_steps: int = 0
+    row: str, runs: Path, common: list[str], people: int, stored: Path, stage1: int, stage2: int, warmup: Path | None = None, warmup_steps: int = 0,
+    frozen_steps: int | None = None,
 ) -> dict:
     """Trains and evaluates one row, or reuses its stored results (committed with the
     repository, so a row survives the machine it was trained on)."""
     if stored.exists():
         results = _read_results(stored)
-        if _matches(results, stage1, stage2, row, people, warmup_steps):
+        if _matches(results, stage1, stage2, row, people, warmup_steps, frozen_steps):
             print(f"row {row}: using {stored}", flush=True)
             return results
     out = runs / row
@@ -167,6 +171,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--stage1-steps", type=int, default=800)
     parser.add_argument("--stage2-steps", type=int, default=200)
     parser.add_argument("--landmark-warmup-steps", type=int, default=TrainConfig().landmark_warmup_steps)
+    parser.add_argument(
+        "--stage1-track-frozen-steps", type=int, default=TrainConfig().stage1_track_frozen_steps,
+        help="stage-1 steps with TrackNet frozen (scale it with --stage1-steps)",
+    )
     parser.add_argument("--warmup-from", type=Path, default=None, help="the full run's warm-up (RUN/warmup.pt): the rows start at stage 1 from it")
     parser.add_argument("--data", type=str, default=None, help="cache directory (see dataset.py)")
     parser.add_argument("--people", type=int, default=40, help="held-out people to evaluate on")
@@ -176,9 +184,11 @@ def main(argv: list[str] | None = None) -> None:
     unknown = [r for r in rows if r not in ROWS]
     if unknown:
         raise SystemExit(f"unknown ablation row(s) {unknown}; known: {list(ROWS)}")
-    if args.landmark_warmup_steps < 0:
-        raise SystemExit(f"--landmark-warmup-steps {args.landmark_warmup_steps}: must be >= 0")
-    common = ["--stage1-steps", str(args.stage1_steps), "--stage2-steps", str(args.stage2_steps), "--landmark-warmup-steps", str(args.landmark_warmup_steps)]
+    for name in ("landmark_warmup_steps", "stage1_track_frozen_steps"):
+        if getattr(args, name) < 0:
+            raise SystemExit(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 0")
+    common = ["--stage1-steps", str(args.stage1_steps), "--stage2-steps", str(args.stage2_steps), "--landmark-warmup-steps", str(args.landmark_warmup_steps),
+              "--stage1-track-frozen-steps", str(args.stage1_track_frozen_steps)]
     if args.data:
         common += ["--data", args.data]
     t0 = time.time()
@@ -186,7 +196,8 @@ def main(argv: list[str] | None = None) -> None:
     for row in rows:
         stored = args.out.parent / "ablation" / f"{row}.json"
         results = train_and_evaluate(
-            row, args.runs, common, args.people, stored, args.stage1_steps, args.stage2_steps, args.warmup_from, args.landmark_warmup_steps
+            row, args.runs, common, args.people, stored, args.stage1_steps, args.stage2_steps, args.warmup_from, args.landmark_warmup_steps,
+            args.stage1_track_frozen_steps,
         )
         collected.append((row, ROWS[row][0], results))
     if args.full is not None:

@@ -55,6 +55,11 @@ def test_stored_rows_are_reused_only_for_the_same_budget_and_flags(tmp_path, mon
         with pytest.raises(Trains) as trained:
             ablation.train_and_evaluate(row, tmp_path / "runs", [], people, stored, s1, s2, warmup_steps=warm)
         assert "likeness_train.train" in trained.value.args[0]
+    # So must another frozen start of stage 1 (the stored row has the default).
+    frozen = config.stage1_track_frozen_steps
+    assert ablation.train_and_evaluate("B", tmp_path / "runs", [], 3, stored, 8, 2, warmup_steps=5, frozen_steps=frozen)["evaluation"]["people"] == 3
+    with pytest.raises(Trains):
+        ablation.train_and_evaluate("B", tmp_path / "runs", [], 3, stored, 8, 2, warmup_steps=5, frozen_steps=frozen + 1)
 
 
 def test_unreadable_results_are_a_clear_error(tmp_path):

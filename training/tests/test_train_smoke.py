@@ -13,7 +13,7 @@ from likeness_train.train import TrainConfig, Trainer
 
 
 def _config(**overrides):
-    base = dict(people_per_batch=1, frames=2, landmark_warmup_steps=0, stage1_steps=2, stage2_steps=1, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
+    base = dict(people_per_batch=1, frames=2, landmark_warmup_steps=0, stage1_track_frozen_steps=0, stage1_supervision=False, stage1_steps=2, stage2_steps=1, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
     base.update(overrides)
     return TrainConfig(**base)
 
@@ -92,7 +92,7 @@ def test_landmark_warmup_trains_tracknet_alone_then_runs_the_two_stages(tmp_path
     from likeness_train import render as R
     from likeness_train.train import camera_translation, normalise
 
-    trainer = Trainer(_config(landmark_warmup_steps=2, warmup_supervision=0.0, stage1_steps=1, stage2_steps=1), tmp_path / "w")
+    trainer = Trainer(_config(landmark_warmup_steps=2, warmup_supervision=0.0, warmup_light_supervision=0.0, stage1_steps=1, stage2_steps=1), tmp_path / "w")
     assert trainer.stage == 0 and trainer.data_index() == 0
     model_before = {k: v.clone() for k, v in trainer.modelnet.state_dict().items()}
     track_before = {k: v.clone() for k, v in trainer.track.state_dict().items()}
@@ -125,7 +125,7 @@ def test_warmup_supervision_adds_the_squared_error_of_w(tmp_path):
     lambda to the warm-up only; stage 1 never sees it."""
     from likeness_train.train import normalise
 
-    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, warmup_supervision=7.0), tmp_path / "s")
+    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, warmup_supervision=7.0, warmup_light_supervision=0.0), tmp_path / "s")
     batch = trainer.data.batch(0, 1)
     state = {k: v.clone() for k, v in trainer.track.state_dict().items()}
     trainer.track.train()
@@ -138,7 +138,58 @@ def test_warmup_supervision_adds_the_squared_error_of_w(tmp_path):
     assert values["total"] == pytest.approx(values["lm"] * trainer.cfg.weights["lm"] + values["reg"] * trainer.cfg.weights["reg"] + 7.0 * expected, rel=1e-4)
     trainer.run(log_every=1)
     assert trainer.stage == 1
-    assert "sup" not in trainer.train_step()
+    assert "sup" not in trainer.train_step(), "stage 1 is self-supervised unless --stage1-supervision"
+
+
+def test_stage1_supervision_keeps_the_warmups_terms_while_tracknet_trains(tmp_path):
+    trainer = Trainer(_config(stage1_steps=3, stage2_steps=1, stage1_track_frozen_steps=1, stage1_supervision=True, warmup_supervision=2.0, warmup_light_supervision=5.0), tmp_path / "s1")
+    frozen = trainer.train_step()
+    assert "sup" not in frozen and "sup_light" not in frozen, "nothing to supervise while TrackNet is frozen"
+    values = trainer.train_step()
+    paper = sum(trainer.cfg.weights[k] * values[k] for k in ("ph", "lm", "sd", "pa", "bg", "reg"))
+    assert values["total"] == pytest.approx(paper + 2.0 * values["sup"] + 5.0 * values["sup_light"], rel=1e-4)
+    trainer.run(log_every=1)
+    assert trainer.stage == 2
+    assert "sup" not in trainer.train_step(), "stage 2 freezes TrackNet"
+
+
+def test_warmup_light_supervision_adds_the_squared_error_of_gamma(tmp_path):
+    """--warmup-light-supervision lambda adds sum_k (gamma_k - gamma_k^true)^2 per image."""
+    from likeness_train.train import normalise
+
+    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, warmup_supervision=0.0, warmup_light_supervision=3.0), tmp_path / "g")
+    batch = trainer.data.batch(0, 1)
+    state = {k: v.clone() for k, v in trainer.track.state_dict().items()}
+    trainer.track.train()
+    with torch.no_grad():
+        gamma = trainer.track(normalise(batch.images)).gamma
+    trainer.track.load_state_dict(state)
+    values = trainer.train_step()
+    expected = float((gamma - batch.gamma).pow(2).sum()) / 2
+    assert expected > 0
+    assert values["sup_light"] == pytest.approx(expected, rel=1e-4)
+    assert values["total"] == pytest.approx(values["lm"] * trainer.cfg.weights["lm"] + values["reg"] * trainer.cfg.weights["reg"] + 3.0 * expected, rel=1e-4)
+
+
+def test_stage1_keeps_tracknet_frozen_for_its_first_steps_then_scales_its_rate(tmp_path):
+    """With --stage1-track-frozen-steps K, stage 1's first K steps change ModelNet and R_0^t
+    only; afterwards TrackNet trains at --stage1-track-lr-ratio times ModelNet's rate."""
+    trainer = Trainer(_config(stage1_steps=3, stage2_steps=0, stage1_track_frozen_steps=2, stage1_track_lr_ratio=0.25), tmp_path / "f")
+    track_before = {k: v.clone() for k, v in trainer.track.state_dict().items()}
+    model_before = {k: v.clone() for k, v in trainer.modelnet.state_dict().items()}
+    for _ in range(2):
+        assert trainer.tracking_frozen()
+        values = trainer.train_step()
+        assert "reg" in values, "the stage-1 loss keeps its terms while TrackNet is frozen"
+    # Frozen means eval mode too: not even the batch-norm statistics move.
+    assert all(torch.equal(v, track_before[k]) for k, v in trainer.track.state_dict().items())
+    assert any(not torch.equal(v, model_before[k]) for k, v in trainer.modelnet.state_dict().items())
+    assert not trainer.tracking_frozen()
+    trainer.run(log_every=1)
+    assert trainer.step == 3
+    assert any(not torch.equal(v, track_before[k]) for k, v in trainer.track.state_dict().items())
+    track_group, model_group = trainer.optimizer.param_groups
+    assert track_group["lr"] == pytest.approx(0.25 * model_group["lr"])
 
 
 def test_resume_refuses_a_checkpoint_of_another_schedule(tmp_path):
