@@ -359,10 +359,7 @@ class Trainer:
         total_steps = warmup + self.cfg.stage1_steps + self.cfg.stage2_steps
         while self.step < total_steps:
             if self.stage == 0 and self.step >= warmup:
-                # The warm-up's end is kept: it does not depend on the stage-1 flags, so the
-                # ablation rows start from it (`ablation --warmup-from`).
-                self.save()
-                shutil.copyfile(self.checkpoint_path, self.out / WARMUP_CHECKPOINT)
+                self.keep_warmup()
                 self.stage = 1
                 self.optimizer = self._optimizer()
                 self.save()
@@ -384,7 +381,15 @@ class Trainer:
             if time.time() - last_save > self.cfg.checkpoint_every_s:
                 self.save()
                 last_save = time.time()
+        if self.stage == 0 and warmup > 0:  # a warm-up-only run (no stage-1 steps) ends here
+            self.keep_warmup()
         self.save()
+
+    def keep_warmup(self) -> None:
+        """Saves the warm-up's end beside the checkpoint: it does not depend on the stage-1
+        flags, so the ablation rows start from it (`ablation --warmup-from`)."""
+        self.save()
+        shutil.copyfile(self.checkpoint_path, self.out / WARMUP_CHECKPOINT)
 
 
 def decayed_learning_rate(step: int, steps: int, cfg: TrainConfig) -> float:

@@ -68,7 +68,8 @@ def test_camera_translation_round_trips_and_keeps_the_projection():
 
 @pytest.mark.parametrize(
     "flag",
-    [["--lr-decay-from", "1.5"], ["--lr-final-ratio", "nan"], ["--landmark-warmup-steps", "-1"], ["--track-w-grad-scale", "0"], ["--warmup-supervision", "-1"]],
+    [["--lr-decay-from", "1.5"], ["--lr-final-ratio", "nan"], ["--landmark-warmup-steps", "-1"], ["--track-w-grad-scale", "0"], ["--warmup-supervision", "-1"],
+     ["--warmup-light-supervision", "nan"], ["--stage1-track-frozen-steps", "-1"], ["--stage1-track-lr-ratio", "-1"]],
 )
 def test_schedule_flags_out_of_range_are_refused_by_name(flag, capsys):
     from likeness_train.train import config_from_args

@@ -120,25 +120,38 @@ def test_landmark_warmup_trains_tracknet_alone_then_runs_the_two_stages(tmp_path
     assert any(not torch.equal(v, model_before[k]) for k, v in trainer.modelnet.state_dict().items())
 
 
-def test_warmup_supervision_adds_the_squared_error_of_w(tmp_path):
-    """--warmup-supervision lambda adds sum_i (w_i - w_i^true)^2 per image with weight
-    lambda to the warm-up only; stage 1 never sees it."""
+@pytest.mark.parametrize("term, output, truth, flags", [
+    ("sup", "w", "weights", dict(warmup_supervision=7.0, warmup_light_supervision=0.0)),
+    ("sup_light", "gamma", "gamma", dict(warmup_supervision=0.0, warmup_light_supervision=7.0)),
+])
+def test_warmup_supervision_adds_the_squared_error_against_the_truth(tmp_path, term, output, truth, flags):
+    """--warmup-supervision / --warmup-light-supervision lambda add sum (x - x^true)^2 per
+    image (x = w or gamma) with weight lambda to the warm-up only; stage 1 never sees them
+    unless --stage1-supervision."""
     from likeness_train.train import normalise
 
-    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, warmup_supervision=7.0, warmup_light_supervision=0.0), tmp_path / "s")
+    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, **flags), tmp_path / term)
     batch = trainer.data.batch(0, 1)
     state = {k: v.clone() for k, v in trainer.track.state_dict().items()}
     trainer.track.train()
     with torch.no_grad():
-        w = trainer.track(normalise(batch.images)).w
-    trainer.track.load_state_dict(state)
+        predicted = getattr(trainer.track(normalise(batch.images)), output)
+    trainer.track.load_state_dict(state)  # undo the batch-norm statistics update
     values = trainer.train_step()
-    expected = float((w - batch.weights).pow(2).sum()) / 2
-    assert values["sup"] == pytest.approx(expected, rel=1e-4)
+    expected = float((predicted - getattr(batch, truth)).pow(2).sum()) / 2
+    assert expected > 0
+    assert values[term] == pytest.approx(expected, rel=1e-4)
     assert values["total"] == pytest.approx(values["lm"] * trainer.cfg.weights["lm"] + values["reg"] * trainer.cfg.weights["reg"] + 7.0 * expected, rel=1e-4)
     trainer.run(log_every=1)
     assert trainer.stage == 1
-    assert "sup" not in trainer.train_step(), "stage 1 is self-supervised unless --stage1-supervision"
+    assert term not in trainer.train_step(), "stage 1 is self-supervised unless --stage1-supervision"
+
+
+def test_a_warmup_only_run_keeps_its_warmup_checkpoint(tmp_path):
+    trainer = Trainer(_config(landmark_warmup_steps=2, stage1_steps=0, stage2_steps=0), tmp_path / "wo")
+    trainer.run(log_every=1)
+    warmup = torch.load(tmp_path / "wo" / "warmup.pt", weights_only=False)
+    assert (warmup["stage"], warmup["step"]) == (0, 2)
 
 
 def test_stage1_supervision_keeps_the_warmups_terms_while_tracknet_trains(tmp_path):
@@ -151,24 +164,6 @@ def test_stage1_supervision_keeps_the_warmups_terms_while_tracknet_trains(tmp_pa
     trainer.run(log_every=1)
     assert trainer.stage == 2
     assert "sup" not in trainer.train_step(), "stage 2 freezes TrackNet"
-
-
-def test_warmup_light_supervision_adds_the_squared_error_of_gamma(tmp_path):
-    """--warmup-light-supervision lambda adds sum_k (gamma_k - gamma_k^true)^2 per image."""
-    from likeness_train.train import normalise
-
-    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, warmup_supervision=0.0, warmup_light_supervision=3.0), tmp_path / "g")
-    batch = trainer.data.batch(0, 1)
-    state = {k: v.clone() for k, v in trainer.track.state_dict().items()}
-    trainer.track.train()
-    with torch.no_grad():
-        gamma = trainer.track(normalise(batch.images)).gamma
-    trainer.track.load_state_dict(state)
-    values = trainer.train_step()
-    expected = float((gamma - batch.gamma).pow(2).sum()) / 2
-    assert expected > 0
-    assert values["sup_light"] == pytest.approx(expected, rel=1e-4)
-    assert values["total"] == pytest.approx(values["lm"] * trainer.cfg.weights["lm"] + values["reg"] * trainer.cfg.weights["reg"] + 3.0 * expected, rel=1e-4)
 
 
 def test_stage1_keeps_tracknet_frozen_for_its_first_steps_then_scales_its_rate(tmp_path):
