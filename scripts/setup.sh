@@ -13,6 +13,8 @@ done
 if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then
   need+=(python3-venv python3-pip)
 fi
+# ffmpeg decodes video files and webcams for `likeness track` / `personalize`.
+command -v ffmpeg >/dev/null 2>&1 || need+=(ffmpeg)
 # Node runs the Khronos glTF validator in retarget's tests (npm package gltf-validator).
 command -v node >/dev/null 2>&1 || need+=(nodejs)
 command -v npm >/dev/null 2>&1 || need+=(npm)
@@ -40,4 +42,29 @@ validator_dir="$(cd "$(dirname "$0")/.." && pwd)/tools/gltf-validator"
 if [ ! -d "$validator_dir/node_modules/gltf-validator" ]; then
   echo "setup: installing the Khronos glTF validator (npm)"
   npm install --prefix "$validator_dir" --no-audit --no-fund --silent >/dev/null
+fi
+
+# ONNX Runtime for the `tracking` crate (loaded at run time through `ort`, whose build-time
+# download cannot reach its server): the library from the PyPI wheel of the version `ort`
+# wraps, unpacked to .cache/onnxruntime/. Override with ORT_DYLIB_PATH.
+ort_version=1.31.1
+ort_dir="$(cd "$(dirname "$0")/.." && pwd)/.cache/onnxruntime"
+if [ ! -f "$ort_dir/libonnxruntime.so.$ort_version" ]; then
+  echo "setup: fetching ONNX Runtime $ort_version (PyPI wheel)"
+  mkdir -p "$ort_dir/wheel"
+  python3 -m pip download --disable-pip-version-check -q --no-deps \
+    --only-binary=:all: "onnxruntime==$ort_version" -d "$ort_dir/wheel" >/dev/null
+  python3 - "$ort_dir" "$ort_version" <<'PY'
+import pathlib, shutil, sys, zipfile
+out, version = pathlib.Path(sys.argv[1]), sys.argv[2]
+wheel = next((out / "wheel").glob(f"onnxruntime-{version}-*.whl"))
+name = f"libonnxruntime.so.{version}"
+with zipfile.ZipFile(wheel) as z:
+    member = next(m for m in z.namelist() if m.endswith("/capi/" + name))
+    tmp = out / (name + ".tmp")
+    with z.open(member) as src, open(tmp, "wb") as dst:
+        shutil.copyfileobj(src, dst)
+    tmp.replace(out / name)
+shutil.rmtree(out / "wheel")
+PY
 fi

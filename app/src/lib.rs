@@ -11,3 +11,4 @@ pub mod puppet_view;
 pub mod retarget_cli;
 pub mod scene;
 pub mod studio;
+pub mod track_cli;

@@ -71,6 +71,38 @@ enum Command {
         #[arg(long, default_value = "assets/puppets")]
         out: PathBuf,
     },
+    /// Track faces in footage: per-frame blendshape weights (ICT and ARKit names), head
+    /// pose, lighting, landmarks and face box, as JSON (schema in the README) and
+    /// optionally as a Live Link Face CSV.
+    Track {
+        /// An image, a folder of images, a video file, `webcam[:DEVICE]`, or
+        /// `ffmpeg:FORMAT:INPUT` (any FFmpeg input read live, e.g. ffmpeg:lavfi:testsrc2).
+        input: String,
+        /// The tracking JSON to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write a Live Link Face CSV.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        #[command(flatten)]
+        tracking: TrackingArgs,
+    },
+    /// Learn a person's personalized model (ModelNet on N diverse frames) and save it with
+    /// the tracking of the first input as a session file.
+    Personalize {
+        /// Footage of one person: images, folders, videos (as for `track`).
+        #[arg(required = true)]
+        inputs: Vec<String>,
+        /// The session file to write (person.likeness).
+        #[arg(long)]
+        out: PathBuf,
+        /// How many frames ModelNet sees (chosen for expression and pose diversity).
+        #[arg(long, default_value_t = tracking::personalize::DEFAULT_FRAMES,
+              value_parser = clap::value_parser!(usize))]
+        frames: usize,
+        #[command(flatten)]
+        tracking: TrackingArgs,
+    },
     /// Render one view of the face to a PNG file without a window.
     Screenshot {
         #[arg(long)]
@@ -91,6 +123,91 @@ enum Command {
         #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
         pitch: f32,
     },
+}
+
+/// Options shared by `track` and `personalize`.
+#[derive(clap::Args)]
+struct TrackingArgs {
+    /// Temporal smoothing: `default`, `off`, or One-Euro parameters such as
+    /// `min_cutoff=1.0,beta=0.3` or `weights.beta=2,rotation.min_cutoff=0.5`.
+    /// Always off for a single image.
+    #[arg(long, default_value = "default")]
+    smooth: String,
+    /// Skip test-time refinement (TrackNet's output as is).
+    #[arg(long)]
+    no_refine: bool,
+    /// Inference engine: auto (ONNX Runtime if its library loads, else tract),
+    /// onnxruntime or tract.
+    #[arg(long, default_value = "auto")]
+    backend: String,
+    /// Threads for ONNX Runtime.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// How faces are found: auto, landmarks (OpenSeeFace detection) or precropped (every
+    /// image is a face crop framed like the training images).
+    #[arg(long, default_value = "auto")]
+    locator: String,
+    /// Folder of the OpenSeeFace models. Default: $LIKENESS_MODELS/openseeface, else
+    /// ../shared/models/openseeface beside the repository.
+    #[arg(long, value_name = "DIR")]
+    models: Option<PathBuf>,
+    /// Folder of Likeness's networks (manifest.json, track_net.onnx, model_net.onnx).
+    /// Default: $LIKENESS_NETWORKS, else assets/models.
+    #[arg(long, value_name = "DIR")]
+    networks: Option<PathBuf>,
+    /// Horizontal field of view of the camera in degrees (default 50 for footage).
+    #[arg(long, allow_hyphen_values = true)]
+    fov: Option<f32>,
+    /// Frame rate given to image folders.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// Stop after this many frames (a camera runs until Ctrl-C otherwise).
+    #[arg(long)]
+    max_frames: Option<usize>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+impl TrackingArgs {
+    fn options(&self, single_image: bool) -> Result<likeness::track_cli::TrackOptions> {
+        use tracking::pipeline::TrackerConfig;
+        let mut config = TrackerConfig {
+            backend: self.backend.parse()?,
+            threads: self.threads.clamp(1, 64),
+            locator: self.locator.parse()?,
+            fov_deg: likeness::track_cli::parse_fov(self.fov)?,
+            ..TrackerConfig::default()
+        };
+        if let Some(dir) = &self.networks {
+            config.networks_dir = dir.clone();
+        }
+        if let Some(dir) = &self.models {
+            config.models_dir = dir.clone();
+        }
+        if self.no_refine {
+            config.refine = None;
+        }
+        config.smoothing = if single_image {
+            tracking::smooth::SmoothingConfig::off()
+        } else {
+            self.smooth.parse().context("--smooth")?
+        };
+        if !(self.fps.is_finite() && self.fps > 0.0 && self.fps <= 1000.0) {
+            bail!("--fps {} is outside (0, 1000]", self.fps);
+        }
+        Ok(likeness::track_cli::TrackOptions {
+            config,
+            fps: self.fps,
+            max_frames: self.max_frames,
+            progress: !self.quiet,
+        })
+    }
+}
+
+fn load_face(facemodel: Option<&std::path::Path>) -> Result<Arc<face::FaceModel>> {
+    let template = face::Template::load_default(facemodel)?;
+    Ok(Arc::new(face::FaceModel::new(template)))
 }
 
 fn parse_size(text: &str) -> Result<(u32, u32)> {
@@ -138,6 +255,43 @@ fn main() -> Result<()> {
             mapping,
             out,
         } => likeness::retarget_cli::run(&tracks, &puppet, mapping.as_deref(), &out)?,
+        Command::Track {
+            input,
+            out,
+            csv,
+            tracking,
+        } => {
+            let single = matches!(
+                tracking::source::InputSpec::parse(&input),
+                Ok(tracking::source::InputSpec::Image(_))
+            );
+            let options = tracking.options(single)?;
+            likeness::track_cli::run_track(
+                load_face(cli.facemodel.as_deref())?,
+                &input,
+                &out,
+                csv.as_deref(),
+                options,
+            )?
+        }
+        Command::Personalize {
+            inputs,
+            out,
+            frames,
+            tracking,
+        } => {
+            if !(1..=64).contains(&frames) {
+                bail!("--frames {frames} is outside 1..64");
+            }
+            let options = tracking.options(false)?;
+            likeness::track_cli::run_personalize(
+                load_face(cli.facemodel.as_deref())?,
+                &inputs,
+                &out,
+                frames,
+                options,
+            )?
+        }
         Command::GeneratePuppets { out } => {
             for path in retarget::generator::write_all(&out)? {
                 println!("wrote {}", path.display());

@@ -267,10 +267,23 @@ pub fn eye_angles_rad(arkit: &[f32; NUM_ARKIT]) -> [f32; 4] {
 /// Live Link Face CSV of the tracked ARKit weights after the mapping's neutral calibration,
 /// with head and eye angles in radians.
 pub fn live_link_csv(retargeter: &Retargeter, tracks: &Tracks) -> String {
+    live_link_csv_with(tracks, |arkit| retargeter.calibrated(arkit))
+}
+
+/// Live Link Face CSV of the tracked ARKit weights as they are (no puppet, no
+/// calibration): what `likeness track --csv` writes.
+pub fn live_link_csv_raw(tracks: &Tracks) -> String {
+    live_link_csv_with(tracks, |arkit| *arkit)
+}
+
+fn live_link_csv_with(
+    tracks: &Tracks,
+    calibrate: impl Fn(&[f32; NUM_ARKIT]) -> [f32; NUM_ARKIT],
+) -> String {
     let mut out = live_link_header();
     out.push('\n');
     for f in &tracks.frames {
-        let calibrated = retargeter.calibrated(&f.arkit);
+        let calibrated = calibrate(&f.arkit);
         let [yaw, pitch, roll] = f.rotation_deg.unwrap_or([0.0; 3]).map(f32::to_radians);
         let [ly, lp, ry, rp] = eye_angles_rad(&calibrated);
         let mut row = vec![

@@ -7,6 +7,9 @@ results.json]` writes `track_net.onnx` ([B,3,H,W] -> w, euler, translation, gamm
 must add dR_0 and dR_i to this, not to the procedural R_0 it started from) and
 `manifest.json`. It checks ONNX Runtime against PyTorch and prints the batch-1 ONNX
 Runtime latency of each model with 1 and 2 threads (median of 30 runs after 5 warm-ups).
+The manifest's `crop` (where inference puts the square crop around the landmarks,
+preprocess.py) is kept from the manifest it replaces or the committed one when calibrated
+on the same synthetic distribution, and measured again otherwise or with `--recalibrate-crop`.
 """
 
 from __future__ import annotations
@@ -46,6 +49,9 @@ class Manifest:
         }
     )
     camera: dict = field(default_factory=dict)
+    # Where the crop goes around the landmarks (preprocess.py; measured on the training
+    # distribution, so it depends on the synthetic camera, not on the checkpoint).
+    crop: dict = field(default_factory=dict)
     mean_albedo: dict = field(
         default_factory=lambda: {"file": "mean_albedo.safetensors", "tensor": "mean_albedo_face", "shape": [3, 512, 512], "dtype": "float16", "what": "trained R_0^t (face layer, row 0 at v = 1)"}
     )
@@ -75,6 +81,27 @@ def camera_assumptions() -> dict:
         "face_fill": c.face_fill,
         "units": "translation in cm, camera looks down -z (OpenGL convention)",
     }
+
+
+# The committed manifest: a source of the crop framing for exports elsewhere (tests, probes).
+REPOSITORY_MANIFEST = Path(__file__).resolve().parents[2] / "assets" / "models" / "manifest.json"
+
+
+def crop_framing(previous_manifests: list[Path], input_size: int, recalibrate: bool = False) -> dict:
+    """The manifest's `crop` key: taken from the first of `previous_manifests` (the one
+    being replaced, the committed one) calibrated on the same synthetic distribution (its
+    `calibrated_on` says so), otherwise measured again (`preprocess.calibrate`, 2,000
+    frames, ~1-2 min). The framing depends on the synthetic cameras, not on the checkpoint."""
+    from .preprocess import calibrate, calibration_description
+
+    want = calibration_description(image_size=input_size)
+    for path in [] if recalibrate else previous_manifests:
+        if path.is_file():
+            old = json.loads(path.read_text()).get("crop")
+            if old and old.get("calibrated_on") == want:
+                return old
+    print("calibrating the crop framing on synthetic training frames", flush=True)
+    return calibrate(image_size=input_size).manifest_entry()
 
 
 class _TrackWrapper(nn.Module):
@@ -196,6 +223,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--checkpoint", type=Path, required=True)
     parser.add_argument("--out", type=Path, default=Path("assets/models"))
     parser.add_argument("--metrics", type=Path, default=None, help="results.json of `python -m likeness_train.evaluate` for the manifest's `metrics`")
+    parser.add_argument("--recalibrate-crop", action="store_true", help="measure the crop framing again instead of keeping a manifest's (preprocess.py)")
     args = parser.parse_args(argv)
     nets = load_networks(args.checkpoint)
     cfg, ckpt, track, model = nets.config, nets.checkpoint, nets.track, nets.model
@@ -205,12 +233,14 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"{args.checkpoint} has no trained mean albedo R_0^t; it is not a training checkpoint")
     albedo_path = save_mean_albedo(nets.mean_albedo, args.out)
     timings = latency(track_path, model_path, cfg["input_size"], frames=cfg.get("frames", 4))
+    crop = crop_framing([args.out / "manifest.json", REPOSITORY_MANIFEST], cfg["input_size"], args.recalibrate_crop)
     manifest = Manifest(
         input_size=cfg["input_size"],
         track_width=cfg["track_width"],
         model_width=cfg["model_width"],
         blendshape_names=list(cfg["blendshape_names"]),
         camera=camera_assumptions(),
+        crop=crop,
         training_commit=ckpt.get("commit", git_commit()),
         training={"step": ckpt.get("step"), "stage": ckpt.get("stage"), "elapsed_s": round(ckpt.get("elapsed_s", 0.0), 1), "config": {k: v for k, v in cfg.items() if k != "blendshape_names"}},
         parity_max_abs_diff=diffs,

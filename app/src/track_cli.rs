@@ -1,0 +1,287 @@
+//! `likeness track` and `likeness personalize`: footage in, tracking JSON / Live Link Face
+//! CSV / a personalized session out, with progress bars, and partial results kept when
+//! the footage breaks off or the user presses Ctrl-C.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{Context, Result, bail};
+use face::FaceModel;
+use indicatif::{ProgressBar, ProgressStyle};
+use tracking::pipeline::{FrameOutput, Tracker, TrackerConfig};
+use tracking::record::{FrameRecord, TracksDocument, write_atomically};
+use tracking::session::{Session, SessionInfo};
+use tracking::source::{InputSpec, Next};
+
+/// Set by Ctrl-C: stop reading footage, keep what was tracked.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+fn install_ctrl_c() {
+    // A second install (personalize after track in one process) is harmless to ignore.
+    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::SeqCst));
+}
+
+/// Common options of `track` and `personalize`.
+pub struct TrackOptions {
+    pub config: TrackerConfig,
+    pub fps: f64,
+    pub max_frames: Option<usize>,
+    pub progress: bool,
+}
+
+fn progress_bar(len: Option<usize>, show: bool, what: &str) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let bar = match len {
+        Some(n) => ProgressBar::new(n as u64),
+        None => ProgressBar::new_spinner(),
+    };
+    let template = if len.is_some() {
+        "{prefix} [{bar:30}] {pos}/{len} frames, {per_sec}, eta {eta} {msg}"
+    } else {
+        "{prefix} {spinner} {pos} frames, {per_sec} {msg}"
+    };
+    if let Ok(style) = ProgressStyle::with_template(template) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_prefix(what.to_string());
+    bar
+}
+
+/// Tracks every frame of one input. Returns the document (complete or not) and the frame
+/// outputs when `keep_outputs` (for personalization).
+pub fn track_input(
+    tracker: &mut Tracker,
+    input: &str,
+    options: &TrackOptions,
+    keep_outputs: bool,
+) -> Result<(TracksDocument, Vec<FrameOutput>, (u32, u32))> {
+    let spec = InputSpec::parse(input).with_context(|| format!("input `{input}`"))?;
+    let mut source = spec
+        .open(options.fps)
+        .with_context(|| format!("input `{input}`"))?;
+    let mut doc = TracksDocument::new(source.describe(), source.fps());
+    let bar = progress_bar(source.len_hint(), options.progress, "tracking");
+    let mut outputs = Vec::new();
+    let mut size = (0, 0);
+    tracker.reset();
+    let mut faces = 0usize;
+    loop {
+        if STOP.load(Ordering::SeqCst) {
+            // Ctrl-C on a live camera is how it ends; on a file it cuts the clip short.
+            if !source.is_live() {
+                doc.complete = false;
+                doc.error = Some("stopped by the user".into());
+            }
+            break;
+        }
+        if options.max_frames.is_some_and(|m| doc.frames.len() >= m) {
+            break;
+        }
+        match source.next_frame() {
+            Ok(Next::End) => break,
+            Ok(Next::Skipped(skip)) => {
+                tracing::warn!("frame {}: {}", skip.index, skip.error);
+                doc.frames.push(FrameRecord::no_face(
+                    skip.index,
+                    skip.time_s,
+                    Some(skip.error.to_string()),
+                ));
+            }
+            Ok(Next::Frame(frame)) => {
+                if doc.camera.is_none() {
+                    size = frame.image.dimensions();
+                    doc.camera = Some(tracker.camera_record(size.0, size.1));
+                } else if frame.image.dimensions() != size {
+                    // A folder of images of different sizes: each has its own camera.
+                    size = frame.image.dimensions();
+                    tracker.reset();
+                }
+                let out = tracker.process(&frame);
+                if out.record.face {
+                    faces += 1;
+                }
+                doc.frames.push(out.record.clone());
+                if keep_outputs {
+                    outputs.push(out);
+                }
+            }
+            Err(e) => {
+                // The footage broke off: keep everything tracked so far.
+                doc.complete = false;
+                doc.error = Some(e.to_string());
+                break;
+            }
+        }
+        bar.inc(1);
+        bar.set_message(format!("{faces} with a face"));
+    }
+    bar.finish_and_clear();
+    Ok((doc, outputs, size))
+}
+
+/// `likeness track INPUT --out tracks.json [--csv tracks.csv]`.
+pub fn run_track(
+    face: Arc<FaceModel>,
+    input: &str,
+    out: &Path,
+    csv: Option<&Path>,
+    options: TrackOptions,
+) -> Result<()> {
+    check_output(out)?;
+    if let Some(csv) = csv {
+        check_output(csv)?;
+    }
+    install_ctrl_c();
+    let footage = InputSpec::parse(input)
+        .map(|s| s.is_footage())
+        .unwrap_or(false);
+    let mut tracker = Tracker::new(face, options.config.clone(), footage)?;
+    let (mut doc, _, _) = track_input(&mut tracker, input, &options, false)?;
+    doc.settings = settings_json(&tracker, &options);
+    doc.save(out)?;
+    if let Some(csv) = csv {
+        write_csv(&doc, csv)?;
+    }
+    report(&doc, out);
+    if let Some(e) = &doc.error {
+        bail!(
+            "tracking stopped early ({e}); the {} frames before it are in {}",
+            doc.frames.len(),
+            out.display()
+        );
+    }
+    Ok(())
+}
+
+/// `likeness personalize INPUT... --out person.likeness`.
+pub fn run_personalize(
+    face: Arc<FaceModel>,
+    inputs: &[String],
+    out: &Path,
+    frames: usize,
+    options: TrackOptions,
+) -> Result<()> {
+    check_output(out)?;
+    if inputs.is_empty() {
+        bail!("personalize needs at least one input");
+    }
+    install_ctrl_c();
+    let footage = inputs
+        .iter()
+        .any(|i| InputSpec::parse(i).map(|s| s.is_footage()).unwrap_or(false));
+    let mut tracker = Tracker::new(face.clone(), options.config.clone(), footage)?;
+    let mut docs = Vec::new();
+    for input in inputs {
+        let (doc, outputs, size) = track_input(&mut tracker, input, &options, true)?;
+        if let Some(e) = &doc.error {
+            tracing::warn!(
+                "{input}: {e} (using the {} frames before it)",
+                doc.frames.len()
+            );
+        }
+        docs.push((doc, outputs, size));
+    }
+    // ModelNet over the frames of all inputs: one person.
+    let all: Vec<&FrameOutput> = docs.iter().flat_map(|(_, o, _)| o.iter()).collect();
+    let owned: Vec<FrameOutput> = all.iter().map(|o| (*o).clone()).collect();
+    let kind = tracker.backend();
+    let mut model_net =
+        tracking::networks::ModelNet::load(&tracker.manifest, kind, options.config.threads)?;
+    let bar = progress_bar(None, options.progress, "personalizing");
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    let (corrections, picked) = tracking::personalize::personalize(&mut model_net, &owned, frames)?;
+    bar.finish_and_clear();
+    let blendshapes = Arc::new(face.personalize(&corrections)?);
+    tracker.set_blendshapes(blendshapes);
+    // Track again with the person's own blendshapes (refinement and smoothing only).
+    let (first_doc, first_outputs, size) = docs.remove(0);
+    let mut tracks = first_doc;
+    tracker.reset();
+    tracks.frames = first_outputs
+        .iter()
+        .map(|o| tracker.retrack(o, size.0, size.1))
+        .collect();
+    let selected_frames = picked.iter().map(|&i| owned[i].record.index).collect();
+    tracks.settings = settings_json(&tracker, &options);
+    let session = Session {
+        info: SessionInfo {
+            created_by: format!("likeness {}", env!("CARGO_PKG_VERSION")),
+            source: inputs.join(", "),
+            selected_frames,
+            backend: kind.to_string(),
+            networks: tracker.manifest.dir.display().to_string(),
+        },
+        corrections,
+        tracks,
+    };
+    session.save(out)?;
+    println!(
+        "wrote {} (ModelNet on {} frames: {:?}; {} frames tracked)",
+        out.display(),
+        picked.len(),
+        session.info.selected_frames,
+        session.tracks.frames.len()
+    );
+    Ok(())
+}
+
+fn settings_json(tracker: &Tracker, options: &TrackOptions) -> serde_json::Value {
+    serde_json::json!({
+        "backend": tracker.backend().to_string(),
+        "locator": if tracker.uses_landmarks() { "openseeface" } else { "precropped" },
+        "refinement": options.config.refine.is_some(),
+        "smoothing": format!("{:?}", options.config.smoothing),
+        "fov_deg": options.config.fov_deg,
+    })
+}
+
+fn check_output(path: &Path) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        bail!("the folder of {} does not exist", path.display());
+    }
+    if path.is_dir() {
+        bail!("{} is a folder; give a file name", path.display());
+    }
+    Ok(())
+}
+
+fn write_csv(doc: &TracksDocument, path: &Path) -> Result<()> {
+    let tracks = retarget::tracks::Tracks::parse(&doc.to_json())
+        .map_err(|e| anyhow::anyhow!("cannot convert the tracking to CSV: {e}"))?;
+    write_atomically(
+        path,
+        retarget::export::live_link_csv_raw(&tracks).as_bytes(),
+    )?;
+    Ok(())
+}
+
+fn report(doc: &TracksDocument, out: &Path) {
+    let faces = doc.frames.iter().filter(|f| f.face).count();
+    println!(
+        "wrote {} ({} frames, {} with a face)",
+        out.display(),
+        doc.frames.len(),
+        faces
+    );
+}
+
+/// Parses `--fov`.
+pub fn parse_fov(v: Option<f32>) -> Result<Option<f32>> {
+    match v {
+        Some(f) if !(f.is_finite() && (5.0..=170.0).contains(&f)) => {
+            bail!("--fov {f} is outside 5..170 degrees")
+        }
+        other => Ok(other),
+    }
+}
+
+pub fn default_out(input: &str) -> PathBuf {
+    PathBuf::from(format!("{}.tracks.json", input.trim_end_matches('/')))
+}

@@ -1,0 +1,259 @@
+//! The tracking pipeline's latency per stage and end-to-end frame rate on a 640x480 clip
+//! (decoded from an H.264 file by ffmpeg), ONNX Runtime against tract in one run, and
+//! ModelNet for N = 1, 4, 8. Prints Markdown tables.
+//!
+//! `cargo bench -p tracking --bench pipeline` (the clip comes from
+//! `python -m likeness_train.clips`, which training/setup.sh runs; LIKENESS_CLIPS overrides
+//! the folder). Set LIKENESS_BENCH_FRAMES to limit the frames per pass.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+use std::time::Instant;
+
+use face::{FaceModel, Template};
+use tracking::backend::{BackendChoice, BackendKind, onnxruntime_status};
+use tracking::evaluate::{Clip, default_clips_dir};
+use tracking::networks::{Manifest, ModelNet, default_networks_dir};
+use tracking::personalize::stack;
+use tracking::pipeline::{StageTimes, Tracker, TrackerConfig};
+use tracking::preprocess::{Rect, sample_rect};
+use tracking::source::{FfmpegSource, FrameSource, Next, read_image};
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn encode_clip(clip: &Clip) -> Result<PathBuf, String> {
+    let out = std::env::temp_dir().join(format!("likeness-bench-{}.mp4", std::process::id()));
+    let pattern = clip.dir.join("frame_%04d.png");
+    let status = Command::new("ffmpeg")
+        .args(["-nostdin", "-v", "error", "-y", "-framerate", "30", "-i"])
+        .arg(&pattern)
+        .args(["-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18"])
+        .arg(&out)
+        .status()
+        .map_err(|e| format!("ffmpeg: {e}"))?;
+    if !status.success() {
+        return Err(format!("ffmpeg could not encode {}", pattern.display()));
+    }
+    Ok(out)
+}
+
+struct Row {
+    backend: BackendKind,
+    decode: Vec<f64>,
+    stages: Vec<StageTimes>,
+    total: Vec<f64>,
+    frames_with_face: usize,
+}
+
+fn run_pipeline(
+    face: &Arc<FaceModel>,
+    video: &Path,
+    clip: &Clip,
+    kind: BackendKind,
+    limit: usize,
+) -> Result<Row, String> {
+    let config = TrackerConfig {
+        backend: BackendChoice::Only(kind),
+        fov_deg: Some(clip.fov_deg()),
+        ..TrackerConfig::default()
+    };
+    let mut tracker = Tracker::new(face.clone(), config, true).map_err(|e| e.to_string())?;
+    let mut row = Row {
+        backend: kind,
+        decode: vec![],
+        stages: vec![],
+        total: vec![],
+        frames_with_face: 0,
+    };
+    // Pass 0 warms up (allocations, tract plans); pass 1 is measured.
+    for pass in 0..2 {
+        tracker.reset();
+        let mut source = FfmpegSource::video(video).map_err(|e| e.to_string())?;
+        for _ in 0..limit {
+            let t0 = Instant::now();
+            let frame = match source.next_frame().map_err(|e| e.to_string())? {
+                Next::Frame(f) => f,
+                Next::Skipped(s) => return Err(s.error.to_string()),
+                Next::End => break,
+            };
+            let decode = t0.elapsed().as_secs_f64() * 1e3;
+            let out = tracker.process(&frame);
+            let total = t0.elapsed().as_secs_f64() * 1e3;
+            if pass == 1 {
+                row.decode.push(decode);
+                row.stages.push(out.times);
+                row.total.push(total);
+                row.frames_with_face += usize::from(out.record.face);
+            }
+        }
+    }
+    Ok(row)
+}
+
+fn main() {
+    if std::env::args().any(|a| a == "--list") {
+        return;
+    }
+    let clips = default_clips_dir();
+    let clip = match Clip::load_all(&clips) {
+        Ok(mut c) if !c.is_empty() => c.remove(0),
+        Ok(_) | Err(_) => {
+            eprintln!(
+                "no clips in {}: run training/setup.sh (python -m likeness_train.clips)",
+                clips.display()
+            );
+            std::process::exit(1);
+        }
+    };
+    let limit: usize = std::env::var("LIKENESS_BENCH_FRAMES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(usize::MAX);
+    let template = match Template::load_default(None) {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("{e}");
+            std::process::exit(1);
+        }
+    };
+    let face = Arc::new(FaceModel::new(template));
+    let video = match encode_clip(&clip) {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("{e}");
+            std::process::exit(1);
+        }
+    };
+    let mut kinds = vec![BackendKind::Tract];
+    match onnxruntime_status() {
+        Ok(()) => kinds.insert(0, BackendKind::OnnxRuntime),
+        Err(e) => eprintln!("ONNX Runtime unavailable ({e}); tract only"),
+    }
+    println!(
+        "## Tracking latency per stage, {} ({}x{}, H.264), median ms per frame, {} threads available\n",
+        clip.dir.display(),
+        clip.truth.width,
+        clip.truth.height,
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    );
+    println!(
+        "| backend | decode | detect | landmarks | crop | TrackNet | refinement | smoothing | end to end | fps (1000 / mean) | frames with a face |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    for &kind in &kinds {
+        match run_pipeline(&face, &video, &clip, kind, limit) {
+            Ok(r) => {
+                let col = |f: fn(&StageTimes) -> f64| median(r.stages.iter().map(f).collect());
+                let mean_total = r.total.iter().sum::<f64>() / r.total.len().max(1) as f64;
+                println!(
+                    "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2} | {:.0} | {}/{} |",
+                    r.backend,
+                    median(r.decode.clone()),
+                    col(|s| s.detect_ms),
+                    col(|s| s.landmarks_ms),
+                    col(|s| s.crop_ms),
+                    col(|s| s.tracknet_ms),
+                    col(|s| s.refine_ms),
+                    col(|s| s.smooth_ms),
+                    median(r.total.clone()),
+                    1000.0 / mean_total,
+                    r.frames_with_face,
+                    r.total.len()
+                );
+            }
+            Err(e) => println!("| {kind} | failed: {e} |"),
+        }
+    }
+    println!(
+        "\n(detect runs only when the face is lost; its median over all frames is 0 when the follower keeps the face. Its cost when it runs:)\n"
+    );
+    // The detector alone, on the first frame.
+    let first = read_image(&clip.frames[0]);
+    if let Ok(image) = &first {
+        println!("| backend | detector (ms, median of 10) |\n|---|---|");
+        for &kind in &kinds {
+            let mut models = match tracking::openseeface::OpenSeeFace::load(
+                &tracking::openseeface::default_models_dir(),
+                kind,
+                2,
+            ) {
+                Ok(m) => m,
+                Err(e) => {
+                    println!("| {kind} | {e} |");
+                    continue;
+                }
+            };
+            let times: Vec<f64> = (0..11)
+                .map(|_| {
+                    let t = Instant::now();
+                    let _ = models.detect(image);
+                    t.elapsed().as_secs_f64() * 1e3
+                })
+                .skip(1)
+                .collect();
+            println!("| {kind} | {:.2} |", median(times));
+        }
+    }
+    // ModelNet for N = 1, 4, 8.
+    println!("\n## ModelNet (personalization), median ms of 5 runs\n");
+    println!("| backend | N = 1 | N = 4 | N = 8 |\n|---|---|---|---|");
+    let manifest = match Manifest::load(&default_networks_dir()) {
+        Ok(m) => m,
+        Err(e) => {
+            eprintln!("{e}");
+            std::process::exit(1);
+        }
+    };
+    let s = manifest.input_size;
+    let crops: Vec<_> = clip
+        .frames
+        .iter()
+        .take(8)
+        .filter_map(|p| read_image(p).ok())
+        .filter_map(|img| {
+            let side = img.width().min(img.height()) as f32;
+            let c = glam::Vec2::new(img.width() as f32, img.height() as f32) * 0.5;
+            sample_rect(&img, Rect::square(c, side), s, s, manifest.normalisation).ok()
+        })
+        .collect();
+    for &kind in &kinds {
+        let mut net = match ModelNet::load(&manifest, kind, 2) {
+            Ok(n) => n,
+            Err(e) => {
+                println!("| {kind} | {e} | | |");
+                continue;
+            }
+        };
+        let mut cells = Vec::new();
+        for n in [1usize, 4, 8] {
+            let refs: Vec<_> = crops.iter().cycle().take(n).collect();
+            let Ok(batch) = stack(&refs) else {
+                cells.push("-".to_string());
+                continue;
+            };
+            let _ = net.run(&batch);
+            let times: Vec<f64> = (0..5)
+                .map(|_| {
+                    let t = Instant::now();
+                    let _ = net.run(&batch);
+                    t.elapsed().as_secs_f64() * 1e3
+                })
+                .collect();
+            cells.push(format!("{:.0}", median(times)));
+        }
+        println!("| {kind} | {} |", cells.join(" | "));
+    }
+    let _ = std::fs::remove_file(&video);
+}

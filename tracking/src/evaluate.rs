@@ -1,0 +1,304 @@
+//! Accuracy on held-out synthetic clips (rendered by `python -m likeness_train.clips` with
+//! a seed training never used): expression MAE against the true w, landmark NME against
+//! the true projected landmarks, head-pose error, for TrackNet alone, with refinement,
+//! with the personalized model and with smoothing.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use face::{FaceModel, NUM_BLENDSHAPES, NUM_LANDMARKS};
+use serde::Deserialize;
+
+use crate::error::{Result, TrackingError, io_error};
+use crate::networks::ModelNet;
+use crate::pipeline::{FrameOutput, Tracker, TrackerConfig};
+use crate::record::FrameRecord;
+use crate::smooth::SmoothingConfig;
+use crate::source::{FrameSource, ImageFiles, Next, natural_cmp};
+
+/// One frame's truth.
+#[derive(Clone, Debug, Deserialize)]
+pub struct TruthFrame {
+    pub index: usize,
+    pub time_s: f64,
+    pub weights: Vec<f32>,
+    pub rotation_deg: [f32; 3],
+    pub translation: [f32; 3],
+    pub landmarks_68: Vec<[f32; 2]>,
+    pub face_box: [f32; 4],
+}
+
+/// A clip's truth file.
+#[derive(Clone, Debug, Deserialize)]
+pub struct ClipTruth {
+    pub width: u32,
+    pub height: u32,
+    pub focal_px: f32,
+    pub fps: f64,
+    pub frames: Vec<TruthFrame>,
+}
+
+/// A held-out clip on disk.
+#[derive(Clone, Debug)]
+pub struct Clip {
+    pub dir: PathBuf,
+    pub truth: ClipTruth,
+    pub frames: Vec<PathBuf>,
+}
+
+/// Where `training/setup.sh` renders the held-out clips.
+pub fn default_clips_dir() -> PathBuf {
+    match std::env::var_os("LIKENESS_CLIPS").filter(|v| !v.is_empty()) {
+        Some(d) => PathBuf::from(d),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../training/.cache/clips-s9001"),
+    }
+}
+
+impl Clip {
+    pub fn load(dir: &Path) -> Result<Self> {
+        let truth_path = dir.join("truth.json");
+        let text = std::fs::read_to_string(&truth_path).map_err(io_error(&truth_path))?;
+        let truth: ClipTruth = serde_json::from_str(&text).map_err(|e| TrackingError::Decode {
+            path: truth_path.clone(),
+            reason: e.to_string(),
+        })?;
+        let mut frames: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map_err(io_error(dir))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "png"))
+            .collect();
+        frames.sort_by(|a, b| natural_cmp(&a.to_string_lossy(), &b.to_string_lossy()));
+        let bad = truth.frames.len() != frames.len()
+            || truth.frames.iter().any(|f| {
+                f.weights.len() != NUM_BLENDSHAPES || f.landmarks_68.len() != NUM_LANDMARKS
+            });
+        if bad || frames.is_empty() {
+            return Err(TrackingError::Decode {
+                path: truth_path,
+                reason: format!(
+                    "{} truth frames for {} images, or arrays of the wrong length",
+                    truth.frames.len(),
+                    frames.len()
+                ),
+            });
+        }
+        Ok(Self {
+            dir: dir.to_owned(),
+            truth,
+            frames,
+        })
+    }
+
+    /// Every clip folder (`clip_*`) under `root`, in order.
+    pub fn load_all(root: &Path) -> Result<Vec<Self>> {
+        let mut dirs: Vec<PathBuf> = std::fs::read_dir(root)
+            .map_err(io_error(root))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.join("truth.json").is_file())
+            .collect();
+        dirs.sort();
+        if dirs.is_empty() {
+            return Err(TrackingError::MissingModel {
+                path: root.to_owned(),
+                hint: "no clips: render them with `python -m likeness_train.clips` (training/setup.sh does)".into(),
+            });
+        }
+        dirs.iter().map(|d| Self::load(d)).collect()
+    }
+
+    /// Horizontal field of view of the clip's camera.
+    pub fn fov_deg(&self) -> f32 {
+        2.0 * (0.5 * self.truth.width as f32 / self.truth.focal_px)
+            .atan()
+            .to_degrees()
+    }
+
+    pub fn source(&self) -> ImageFiles {
+        ImageFiles::new(
+            self.frames.clone(),
+            self.truth.fps,
+            self.dir.display().to_string(),
+        )
+    }
+}
+
+/// Errors of one variant over one or more clips.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Metrics {
+    /// Mean |w - w_true| over channels and frames with a face.
+    pub expression_mae: f64,
+    /// Mean landmark distance / sqrt(true box area), over frames with a face.
+    pub landmark_nme: f64,
+    /// Mean |yaw|, |pitch|, |roll| error in degrees.
+    pub pose_error_deg: [f64; 3],
+    /// Frames with a face found / all frames.
+    pub detected: f64,
+    pub frames: usize,
+}
+
+#[derive(Default)]
+struct Accumulator {
+    mae: f64,
+    nme: f64,
+    pose: [f64; 3],
+    with_face: usize,
+    all: usize,
+}
+
+impl Accumulator {
+    fn add(&mut self, record: &FrameRecord, truth: &TruthFrame) {
+        self.all += 1;
+        let Some(t) = &record.track else { return };
+        self.with_face += 1;
+        self.mae += t
+            .weights
+            .iter()
+            .zip(&truth.weights)
+            .map(|(a, b)| f64::from((a - b).abs()))
+            .sum::<f64>()
+            / NUM_BLENDSHAPES as f64;
+        let norm = f64::from(truth.face_box[2] * truth.face_box[3])
+            .sqrt()
+            .max(1e-6);
+        self.nme += t
+            .landmarks_68
+            .iter()
+            .zip(&truth.landmarks_68)
+            .map(|(a, b)| f64::from(glam::Vec2::from(*a).distance(glam::Vec2::from(*b))))
+            .sum::<f64>()
+            / (NUM_LANDMARKS as f64 * norm);
+        for k in 0..3 {
+            let mut d = t.rotation_deg[k] - truth.rotation_deg[k];
+            d = (d + 180.0).rem_euclid(360.0) - 180.0;
+            self.pose[k] += f64::from(d.abs());
+        }
+    }
+
+    fn finish(&self) -> Metrics {
+        let n = self.with_face.max(1) as f64;
+        Metrics {
+            expression_mae: self.mae / n,
+            landmark_nme: self.nme / n,
+            pose_error_deg: self.pose.map(|p| p / n),
+            detected: self.with_face as f64 / self.all.max(1) as f64,
+            frames: self.all,
+        }
+    }
+}
+
+/// The variants compared, in table order.
+pub const VARIANTS: [&str; 4] = [
+    "TrackNet only",
+    "+ refinement (template)",
+    "+ refinement (personalized)",
+    "+ refinement (personalized) + smoothing",
+];
+
+/// One row per variant, plus the w = 0 reference MAE.
+#[derive(Clone, Debug, Default)]
+pub struct Evaluation {
+    pub rows: Vec<(String, Metrics)>,
+    pub zero_weights_mae: f64,
+    pub clips: usize,
+    pub backend: String,
+}
+
+/// Runs every variant over `clips`. `config` supplies backend and models; its refinement
+/// settings are used for the refined variants, and the camera comes from each clip.
+pub fn evaluate(
+    face: Arc<FaceModel>,
+    clips: &[Clip],
+    config: &TrackerConfig,
+    personalize_frames: usize,
+) -> Result<Evaluation> {
+    let mut acc: Vec<Accumulator> = (0..VARIANTS.len())
+        .map(|_| Accumulator::default())
+        .collect();
+    let mut zero = 0.0;
+    let mut zero_n = 0usize;
+    let mut backend = String::new();
+    for clip in clips {
+        let mut cfg = config.clone();
+        cfg.fov_deg = Some(clip.fov_deg());
+        cfg.smoothing = SmoothingConfig::off();
+        let refine_config = cfg.refine.clone().unwrap_or_default();
+        cfg.refine = None;
+        let mut tracker = Tracker::new(face.clone(), cfg, true)?;
+        backend = tracker.backend().to_string();
+        // Pass 1: TrackNet only, keeping everything for the other variants.
+        let mut outputs: Vec<FrameOutput> = Vec::new();
+        let mut source = clip.source();
+        loop {
+            match source.next_frame()? {
+                Next::Frame(f) => outputs.push(tracker.process(&f)),
+                Next::Skipped(s) => return Err(s.error),
+                Next::End => break,
+            }
+        }
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            acc[0].add(&o.record, t);
+            zero +=
+                t.weights.iter().map(|w| f64::from(w.abs())).sum::<f64>() / NUM_BLENDSHAPES as f64;
+            zero_n += 1;
+        }
+        let (w, h) = (clip.truth.width, clip.truth.height);
+        // Refinement on the template.
+        tracker.set_refine(Some(refine_config.clone()));
+        tracker.reset();
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            acc[1].add(&tracker.retrack(o, w, h), t);
+        }
+        // Personalized: ModelNet on diverse frames of this clip.
+        let mut model_net = ModelNet::load(&tracker.manifest, tracker.backend(), config.threads)?;
+        let (corrections, _) =
+            crate::personalize::personalize(&mut model_net, &outputs, personalize_frames)?;
+        tracker.set_blendshapes(Arc::new(face.personalize(&corrections)?));
+        tracker.reset();
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            acc[2].add(&tracker.retrack(o, w, h), t);
+        }
+        tracker.set_smoothing(config.smoothing.clone());
+        tracker.reset();
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            acc[3].add(&tracker.retrack(o, w, h), t);
+        }
+    }
+    Ok(Evaluation {
+        rows: VARIANTS
+            .iter()
+            .zip(&acc)
+            .map(|(name, a)| (name.to_string(), a.finish()))
+            .collect(),
+        zero_weights_mae: zero / zero_n.max(1) as f64,
+        clips: clips.len(),
+        backend,
+    })
+}
+
+impl Evaluation {
+    /// A Markdown table.
+    pub fn table(&self) -> String {
+        let mut out = format!(
+            "{} held-out clips, {} frames, backend {}\n\n| variant | expression MAE | landmark NME | yaw / pitch / roll error (deg) | face found |\n|---|---|---|---|---|\n",
+            self.clips,
+            self.rows.first().map_or(0, |r| r.1.frames),
+            self.backend
+        );
+        for (name, m) in &self.rows {
+            out.push_str(&format!(
+                "| {name} | {:.4} | {:.2} % | {:.2} / {:.2} / {:.2} | {:.0} % |\n",
+                m.expression_mae,
+                100.0 * m.landmark_nme,
+                m.pose_error_deg[0],
+                m.pose_error_deg[1],
+                m.pose_error_deg[2],
+                100.0 * m.detected
+            ));
+        }
+        out.push_str(&format!(
+            "| w = 0 (reference) | {:.4} | | | |\n",
+            self.zero_weights_mae
+        ));
+        out
+    }
+}

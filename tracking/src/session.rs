@@ -1,0 +1,177 @@
+//! The session file (`likeness personalize --out person.likeness`): a person's
+//! personalized model (ModelNet's corrections dS_0, dS_i, dR_0, dR_i) together with the
+//! tracking of the footage it was learnt from.
+//!
+//! The container is safetensors: the four correction tensors in the layout ModelNet
+//! produces (channel-first, row 0 at v = 1) and, in its string metadata, the format name,
+//! a version, the tracking document and which frames ModelNet saw. Files are written
+//! atomically; a file of a newer version, a foreign file or a damaged one is refused with
+//! a message saying which.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use face::uv::{CORRECTION_SIZE, UvMap};
+use face::{NUM_BLENDSHAPES, PersonalCorrections};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, TrackingError, io_error};
+use crate::networks::chw_to_uv;
+use crate::record::{TracksDocument, write_atomically};
+
+pub const SESSION_FORMAT: &str = "likeness-session";
+/// Version 1: corrections as f32 tensors `dS0` [3,128,128], `dS` [53,3,128,128], `dR0`,
+/// `dR`; metadata `format`, `version`, `info`, `tracks`.
+pub const SESSION_VERSION: u32 = 1;
+
+/// How the personalized model was made.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SessionInfo {
+    /// `likeness <version>`.
+    pub created_by: String,
+    /// The footage (file, folder, device).
+    pub source: String,
+    /// Indices (into the tracking frames) of the frames ModelNet saw.
+    pub selected_frames: Vec<usize>,
+    /// The inference backend that ran ModelNet.
+    pub backend: String,
+    /// SHA-256-free identity of the networks: the manifest's training commit, if known.
+    #[serde(default)]
+    pub networks: String,
+}
+
+/// A personalized model and its tracking.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Session {
+    pub info: SessionInfo,
+    pub corrections: PersonalCorrections,
+    pub tracks: TracksDocument,
+}
+
+fn uv_to_chw(map: &UvMap, out: &mut Vec<u8>) {
+    let n = map.width * map.height;
+    for c in 0..map.channels {
+        for t in 0..n {
+            out.extend_from_slice(&map.data[t * map.channels + c].to_le_bytes());
+        }
+    }
+}
+
+impl Session {
+    /// The serialized file.
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        self.corrections.validate()?;
+        let n = CORRECTION_SIZE;
+        let mut ds0 = Vec::new();
+        uv_to_chw(&self.corrections.identity_shape, &mut ds0);
+        let mut dr0 = Vec::new();
+        uv_to_chw(&self.corrections.static_albedo, &mut dr0);
+        let mut ds = Vec::new();
+        for m in &self.corrections.expression_shapes {
+            uv_to_chw(m, &mut ds);
+        }
+        let mut dr = Vec::new();
+        for m in &self.corrections.dynamic_albedo {
+            uv_to_chw(m, &mut dr);
+        }
+        fn view(bytes: &[u8], shape: Vec<usize>) -> Result<safetensors::tensor::TensorView<'_>> {
+            safetensors::tensor::TensorView::new(safetensors::Dtype::F32, shape, bytes)
+                .map_err(|e| TrackingError::InvalidInput(e.to_string()))
+        }
+        let err = |e: safetensors::SafeTensorError| TrackingError::InvalidInput(e.to_string());
+        let tensors = vec![
+            ("dS0", view(&ds0, vec![3, n, n])?),
+            ("dS", view(&ds, vec![NUM_BLENDSHAPES, 3, n, n])?),
+            ("dR0", view(&dr0, vec![3, n, n])?),
+            ("dR", view(&dr, vec![NUM_BLENDSHAPES, 3, n, n])?),
+        ];
+        let mut meta = HashMap::new();
+        meta.insert("format".to_string(), SESSION_FORMAT.to_string());
+        meta.insert("version".to_string(), SESSION_VERSION.to_string());
+        meta.insert(
+            "info".to_string(),
+            serde_json::to_string(&self.info)
+                .map_err(|e| TrackingError::InvalidInput(e.to_string()))?,
+        );
+        meta.insert("tracks".to_string(), self.tracks.to_json());
+        safetensors::serialize(tensors, Some(meta)).map_err(err)
+    }
+
+    /// Writes the session atomically.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        write_atomically(path, &self.to_bytes()?)
+    }
+
+    pub fn load(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(io_error(path))?;
+        Self::from_bytes(&bytes).map_err(|reason| TrackingError::Session {
+            path: path.to_owned(),
+            reason,
+        })
+    }
+
+    pub fn from_bytes(bytes: &[u8]) -> std::result::Result<Self, String> {
+        let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
+            .map_err(|e| format!("not a Likeness session ({e})"))?;
+        let meta = metadata.metadata().clone().unwrap_or_default();
+        if meta.get("format").map(String::as_str) != Some(SESSION_FORMAT) {
+            return Err("not a Likeness session (no `format: likeness-session`)".into());
+        }
+        let version: u32 = meta
+            .get("version")
+            .and_then(|v| v.parse().ok())
+            .ok_or("the session has no readable version")?;
+        if version > SESSION_VERSION {
+            return Err(format!(
+                "session version {version} is newer than this Likeness reads ({SESSION_VERSION}); update Likeness"
+            ));
+        }
+        let info: SessionInfo = serde_json::from_str(meta.get("info").map_or("{}", String::as_str))
+            .map_err(|e| format!("`info`: {e}"))?;
+        let tracks = TracksDocument::from_json(meta.get("tracks").map_or("", String::as_str))
+            .map_err(|e| format!("`tracks`: {e}"))?;
+        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| e.to_string())?;
+        let n = CORRECTION_SIZE;
+        let read = |name: &str, shape: &[usize]| -> std::result::Result<Vec<f32>, String> {
+            let t = st
+                .tensor(name)
+                .map_err(|_| format!("tensor `{name}` is missing"))?;
+            if t.dtype() != safetensors::Dtype::F32 || t.shape() != shape {
+                return Err(format!(
+                    "tensor `{name}` is {:?} {:?}, expected F32 {shape:?}",
+                    t.dtype(),
+                    t.shape()
+                ));
+            }
+            let values: Vec<f32> = t
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            if values.iter().any(|v| !v.is_finite()) {
+                return Err(format!("tensor `{name}` has NaN or infinite values"));
+            }
+            Ok(values)
+        };
+        let plane = 3 * n * n;
+        let ds0 = read("dS0", &[3, n, n])?;
+        let ds = read("dS", &[NUM_BLENDSHAPES, 3, n, n])?;
+        let dr0 = read("dR0", &[3, n, n])?;
+        let dr = read("dR", &[NUM_BLENDSHAPES, 3, n, n])?;
+        let split = |v: &[f32]| {
+            (0..NUM_BLENDSHAPES)
+                .map(|i| chw_to_uv(&v[i * plane..(i + 1) * plane], n, n))
+                .collect()
+        };
+        Ok(Self {
+            info,
+            corrections: PersonalCorrections {
+                identity_shape: chw_to_uv(&ds0, n, n),
+                expression_shapes: split(&ds),
+                static_albedo: chw_to_uv(&dr0, n, n),
+                dynamic_albedo: split(&dr),
+            },
+            tracks,
+        })
+    }
+}

@@ -1,0 +1,62 @@
+//! Shared by the integration tests: the template, the fixture and clip folders, temp dirs.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+use face::{FaceModel, Template};
+
+pub fn face_model() -> Arc<FaceModel> {
+    static MODEL: OnceLock<Arc<FaceModel>> = OnceLock::new();
+    MODEL
+        .get_or_init(|| {
+            let template = Template::load_default(None)
+                .unwrap_or_else(|e| panic!("the ICT template is needed for these tests: {e}"));
+            Arc::new(FaceModel::new(template))
+        })
+        .clone()
+}
+
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The parity fixture `python -m likeness_train.fixtures` writes (training/setup.sh).
+pub fn fixture_dir() -> PathBuf {
+    let dir = repo().join("training/.cache/tracking-fixture");
+    assert!(
+        dir.join("fixture.safetensors").is_file(),
+        "{} is missing: run training/setup.sh (it runs python -m likeness_train.fixtures)",
+        dir.display()
+    );
+    dir
+}
+
+pub fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("likeness-tracking-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+/// Reads an f32 tensor of the fixture.
+pub fn tensor(st: &safetensors::SafeTensors<'_>, name: &str) -> (Vec<usize>, Vec<f32>) {
+    let t = st
+        .tensor(name)
+        .unwrap_or_else(|e| panic!("fixture tensor {name}: {e}"));
+    assert_eq!(t.dtype(), safetensors::Dtype::F32, "{name}");
+    let data = t
+        .data()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    (t.shape().to_vec(), data)
+}
+
+pub fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}

