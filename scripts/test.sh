@@ -4,10 +4,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/likeness-xdg}"
+# The training code's venv, the Rust-exported face fixture, and what the Rust tracking
+# tests compare against: the parity fixture and the held-out synthetic clips it renders.
+training/setup.sh
 cargo test --workspace --all-targets "$@"
 # Doc tests are not part of --all-targets.
 cargo test --workspace --doc
-# The training code (Python): its venv and the Rust-exported fixture, then its tests,
-# which include a smoke training, the ONNX export and the parity checks.
-training/setup.sh
+# The training code (Python): a smoke training, the ONNX export and the parity checks.
 training/.venv/bin/python -m pytest training/tests -q

@@ -233,7 +233,7 @@ fn settings_json(tracker: &Tracker, options: &TrackOptions) -> serde_json::Value
         "backend": tracker.backend().to_string(),
         "locator": if tracker.uses_landmarks() { "openseeface" } else { "precropped" },
         "refinement": options.config.refine.is_some(),
-        "smoothing": format!("{:?}", options.config.smoothing),
+        "smoothing": options.config.smoothing.to_string(),
         "fov_deg": options.config.fov_deg,
     })
 }

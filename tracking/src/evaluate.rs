@@ -302,3 +302,73 @@ impl Evaluation {
         out
     }
 }
+
+/// How well the model's landmarks agree with OpenSeeFace's on a real image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RealCropAgreement {
+    /// Mean distance over the iBUG points both have / sqrt(landmark box area).
+    pub tracknet_nme: f64,
+    pub refined_nme: f64,
+}
+
+/// Tracks the real face crop at `path` pasted into a grey 640x480 frame (the detector,
+/// like upstream's, needs context around a face) and compares the model's projected
+/// landmarks with OpenSeeFace's, before and after refinement.
+pub fn real_crop_agreement(
+    face: Arc<FaceModel>,
+    path: &Path,
+    config: &TrackerConfig,
+) -> Result<RealCropAgreement> {
+    let crop = crate::source::read_image(path)?;
+    let mut frame = image::RgbImage::from_pixel(640, 480, image::Rgb([128, 128, 128]));
+    let (x0, y0) = (
+        (640u32.saturating_sub(crop.width())) / 2,
+        (480u32.saturating_sub(crop.height())) / 2,
+    );
+    image::imageops::replace(&mut frame, &crop, i64::from(x0), i64::from(y0));
+    let mut cfg = config.clone();
+    cfg.locator = crate::pipeline::LocatorChoice::Landmarks;
+    cfg.smoothing = SmoothingConfig::off();
+    let refine_config = cfg.refine.clone().unwrap_or_default();
+    cfg.refine = None;
+    let mut tracker = Tracker::new(face, cfg, true)?;
+    let out = tracker.process(&crate::source::Frame {
+        index: 0,
+        time_s: 0.0,
+        image: frame,
+        path: None,
+    });
+    let observations = out.observations.clone().ok_or_else(|| {
+        TrackingError::InvalidInput(format!(
+            "no face found in {} ({})",
+            path.display(),
+            out.record.note.clone().unwrap_or_default()
+        ))
+    })?;
+    tracker.set_refine(Some(refine_config));
+    tracker.reset();
+    let refined = tracker.retrack(&out, 640, 480);
+    let nme = |record: &FrameRecord| -> Result<f64> {
+        let t = record.track.as_ref().ok_or_else(|| {
+            TrackingError::InvalidInput(record.note.clone().unwrap_or_else(|| "no face".into()))
+        })?;
+        let pairs: Vec<(glam::Vec2, glam::Vec2)> = observations
+            .points
+            .iter()
+            .filter(|o| o.index < 60)
+            .map(|o| (glam::Vec2::from(t.landmarks_68[o.index]), o.pixel))
+            .collect();
+        let bbox = crate::preprocess::Rect::bounding(pairs.iter().map(|p| p.1))
+            .ok_or_else(|| TrackingError::InvalidInput("no landmarks".into()))?;
+        let norm = f64::from(bbox.width * bbox.height).sqrt().max(1e-6);
+        Ok(pairs
+            .iter()
+            .map(|(a, b)| f64::from(a.distance(*b)))
+            .sum::<f64>()
+            / (pairs.len().max(1) as f64 * norm))
+    };
+    Ok(RealCropAgreement {
+        tracknet_nme: nme(&out.record)?,
+        refined_nme: nme(&refined)?,
+    })
+}

@@ -199,3 +199,28 @@ fn missing_networks_and_runtime_choices_are_clear() {
     assert!("cuda".parse::<BackendChoice>().is_err());
     let _ = Arc::new(0);
 }
+
+#[test]
+fn refinement_brings_the_model_closer_to_the_detected_landmarks_on_a_real_face() {
+    let crop = common::repo().join("../shared/testdata/faces/openseeface-raw1.png");
+    let config = TrackerConfig {
+        backend: BackendChoice::Only(BackendKind::Tract),
+        ..TrackerConfig::default()
+    };
+    let a =
+        tracking::evaluate::real_crop_agreement(face_model(), &crop, &config).expect("real crop");
+    eprintln!(
+        "real crop NME against OpenSeeFace: TrackNet {:.2} %, refined {:.2} %",
+        100.0 * a.tracknet_nme,
+        100.0 * a.refined_nme
+    );
+    assert!(
+        a.tracknet_nme < 0.2,
+        "TrackNet is lost on the real face: {}",
+        a.tracknet_nme
+    );
+    assert!(
+        a.refined_nme < 0.8 * a.tracknet_nme,
+        "refinement gained too little: {a:?}"
+    );
+}
