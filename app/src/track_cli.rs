@@ -195,7 +195,7 @@ pub fn run_personalize(
     let (corrections, picked) = tracking::personalize::personalize(&mut model_net, &owned, frames)?;
     bar.finish_and_clear();
     let blendshapes = Arc::new(face.personalize(&corrections)?);
-    tracker.set_blendshapes(blendshapes);
+    tracker.set_blendshapes(blendshapes)?;
     // Track again with the person's own blendshapes (refinement and smoothing only).
     let (first_doc, first_outputs, size) = docs.remove(0);
     let mut tracks = first_doc;

@@ -1,30 +1,9 @@
 //! The `likeness` binary as a user runs it: good output for good input, a clear message and
 //! a non-zero exit for bad input.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
 
-fn likeness(args: &[&str]) -> Output {
-    let xdg = std::env::temp_dir().join("likeness-xdg-tests");
-    let _ = std::fs::create_dir_all(&xdg);
-    Command::new(env!("CARGO_BIN_EXE_likeness"))
-        .args(args)
-        .env("XDG_RUNTIME_DIR", &xdg)
-        .env_remove("LIKENESS_FACEMODEL")
-        .output()
-        .expect("run likeness")
-}
-
-fn out_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("likeness-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use common::{likeness, out_dir, stderr};
 
 #[test]
 fn screenshot_writes_the_requested_size_and_expressions_change_it() {

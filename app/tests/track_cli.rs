@@ -1,26 +1,12 @@
 //! `likeness track` and `likeness personalize` as a user runs them: on held-out synthetic
 //! clips (training/setup.sh renders them), a video, a still, and bad input.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-fn likeness(args: &[&str]) -> Output {
-    let xdg = std::env::temp_dir().join("likeness-xdg-tests");
-    let _ = std::fs::create_dir_all(&xdg);
-    Command::new(env!("CARGO_BIN_EXE_likeness"))
-        .args(args)
-        .env("XDG_RUNTIME_DIR", &xdg)
-        .env_remove("LIKENESS_FACEMODEL")
-        .output()
-        .expect("run likeness")
-}
-
-fn out_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("likeness-track-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
+use common::{likeness, out_dir};
 
 fn clip_dir() -> PathBuf {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../training/.cache/clips-s9001/clip_00");

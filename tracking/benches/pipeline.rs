@@ -62,10 +62,12 @@ fn run_pipeline(
     video: &Path,
     clip: &Clip,
     kind: BackendKind,
+    threads: usize,
     limit: usize,
 ) -> Result<Row, String> {
     let config = TrackerConfig {
         backend: BackendChoice::Only(kind),
+        threads,
         fov_deg: Some(clip.fov_deg()),
         ..TrackerConfig::default()
     };
@@ -156,14 +158,31 @@ fn main() {
         "| backend | decode | detect | landmarks | crop | TrackNet | refinement | smoothing | end to end | fps (1000 / mean) | frames with a face |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
-    for &kind in &kinds {
-        match run_pipeline(&face, &video, &clip, kind, limit) {
+    let mut runs: Vec<(BackendKind, usize)> = kinds
+        .iter()
+        .map(|&k| (k, if k == BackendKind::Tract { 1 } else { 2 }))
+        .collect();
+    if kinds.contains(&BackendKind::OnnxRuntime) {
+        runs.insert(1, (BackendKind::OnnxRuntime, 1));
+    }
+    for (kind, threads) in runs {
+        match run_pipeline(&face, &video, &clip, kind, threads, limit) {
             Ok(r) => {
                 let col = |f: fn(&StageTimes) -> f64| median(r.stages.iter().map(f).collect());
                 let mean_total = r.total.iter().sum::<f64>() / r.total.len().max(1) as f64;
                 println!(
-                    "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2} | {:.0} | {}/{} |",
+                    "| {} ({} thread{}) | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2} | {:.0} | {}/{} |",
                     r.backend,
+                    if kind == BackendKind::Tract {
+                        1
+                    } else {
+                        threads
+                    },
+                    if threads > 1 && kind != BackendKind::Tract {
+                        "s"
+                    } else {
+                        ""
+                    },
                     median(r.decode.clone()),
                     col(|s| s.detect_ms),
                     col(|s| s.landmarks_ms),

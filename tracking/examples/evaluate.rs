@@ -3,7 +3,9 @@
 //! smoothing; and on the real face crop in ../shared/testdata, how far the model's
 //! landmarks are from OpenSeeFace's with and without refinement.
 //!
-//! `cargo run --release -p tracking --example evaluate [-- --backend tract]`
+//! `cargo run --release -p tracking --example evaluate [-- --backend tract]
+//! [--weight-prior X] [--rotation-prior X] [--translation-prior X] [--smooth SPEC]`
+//! (the priors and smoothing default to the tracker's defaults).
 
 use std::sync::Arc;
 
@@ -27,8 +29,39 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         .and_then(|i| args.get(i + 1))
         .map_or(Ok(BackendChoice::Auto), |b| b.parse())?;
     let face = Arc::new(FaceModel::new(Template::load_default(None)?));
+    let value = |name: &str| -> Result<Option<f32>, Box<dyn std::error::Error>> {
+        match args
+            .iter()
+            .position(|a| a == name)
+            .and_then(|i| args.get(i + 1))
+        {
+            Some(v) => Ok(Some(v.parse::<f32>().map_err(|e| format!("{name}: {e}"))?)),
+            None => Ok(None),
+        }
+    };
+    let mut refine = tracking::refine::RefineConfig::default();
+    if let Some(v) = value("--weight-prior")? {
+        refine.weight_prior = v;
+    }
+    if let Some(v) = value("--rotation-prior")? {
+        refine.rotation_prior = v;
+    }
+    if let Some(v) = value("--translation-prior")? {
+        refine.translation_prior = v;
+    }
+    refine.validate()?;
+    let smoothing = match args
+        .iter()
+        .position(|a| a == "--smooth")
+        .and_then(|i| args.get(i + 1))
+    {
+        Some(spec) => spec.parse()?,
+        None => tracking::smooth::SmoothingConfig::default(),
+    };
     let config = TrackerConfig {
         backend,
+        refine: Some(refine),
+        smoothing,
         ..TrackerConfig::default()
     };
     let clips = Clip::load_all(&default_clips_dir())?;

@@ -369,6 +369,9 @@ mod ort_backend {
                 })
                 .and_then(|b| b.with_intra_threads(threads.max(1)).map_err(Into::into))
                 .and_then(|b| b.with_inter_threads(1).map_err(Into::into))
+                // Spinning worker threads would keep a core busy between runs, slowing the
+                // Rust stages in between and the ffmpeg decoder on a 2-core machine.
+                .and_then(|b| b.with_intra_op_spinning(false).map_err(Into::into))
                 .and_then(|mut b| b.commit_from_file(path))
                 .map_err(|e| ort_error(&name, e))?;
             Ok(Self { name, session })

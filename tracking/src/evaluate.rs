@@ -133,6 +133,11 @@ pub struct Metrics {
     pub pose_error_deg: [f64; 3],
     /// Frames with a face found / all frames.
     pub detected: f64,
+    /// Jitter: mean over consecutive frames of |(w_t - w_t-1) - (true change)|, per
+    /// channel: the frame-to-frame noise smoothing is meant to remove.
+    pub weight_jitter: f64,
+    /// The same for the landmarks, in NME units.
+    pub landmark_jitter: f64,
     pub frames: usize,
 }
 
@@ -143,12 +148,45 @@ struct Accumulator {
     pose: [f64; 3],
     with_face: usize,
     all: usize,
+    jitter_w: f64,
+    jitter_lm: f64,
+    pairs: usize,
+    /// The previous frame's prediction and truth (cleared between clips).
+    previous: Option<(FrameRecord, TruthFrame)>,
 }
 
 impl Accumulator {
     fn add(&mut self, record: &FrameRecord, truth: &TruthFrame) {
         self.all += 1;
+        let previous = self.previous.replace((record.clone(), truth.clone()));
         let Some(t) = &record.track else { return };
+        if let Some((p, pt)) = previous
+            .as_ref()
+            .and_then(|(r, pt)| Some((r.track.as_ref()?, pt)))
+        {
+            self.pairs += 1;
+            self.jitter_w += (0..NUM_BLENDSHAPES)
+                .map(|i| {
+                    f64::from(
+                        ((t.weights[i] - p.weights[i]) - (truth.weights[i] - pt.weights[i])).abs(),
+                    )
+                })
+                .sum::<f64>()
+                / NUM_BLENDSHAPES as f64;
+            let norm = f64::from(truth.face_box[2] * truth.face_box[3])
+                .sqrt()
+                .max(1e-6);
+            self.jitter_lm += (0..NUM_LANDMARKS)
+                .map(|k| {
+                    let d =
+                        glam::Vec2::from(t.landmarks_68[k]) - glam::Vec2::from(p.landmarks_68[k]);
+                    let e = glam::Vec2::from(truth.landmarks_68[k])
+                        - glam::Vec2::from(pt.landmarks_68[k]);
+                    f64::from((d - e).length())
+                })
+                .sum::<f64>()
+                / (NUM_LANDMARKS as f64 * norm);
+        }
         self.with_face += 1;
         self.mae += t
             .weights
@@ -174,6 +212,10 @@ impl Accumulator {
         }
     }
 
+    fn new_clip(&mut self) {
+        self.previous = None;
+    }
+
     fn finish(&self) -> Metrics {
         let n = self.with_face.max(1) as f64;
         Metrics {
@@ -182,6 +224,8 @@ impl Accumulator {
             pose_error_deg: self.pose.map(|p| p / n),
             detected: self.with_face as f64 / self.all.max(1) as f64,
             frames: self.all,
+            weight_jitter: self.jitter_w / self.pairs.max(1) as f64,
+            landmark_jitter: self.jitter_lm / self.pairs.max(1) as f64,
         }
     }
 }
@@ -225,6 +269,9 @@ pub fn evaluate(
         cfg.refine = None;
         let mut tracker = Tracker::new(face.clone(), cfg, true)?;
         backend = tracker.backend().to_string();
+        for a in &mut acc {
+            a.new_clip();
+        }
         // Pass 1: TrackNet only, keeping everything for the other variants.
         let mut outputs: Vec<FrameOutput> = Vec::new();
         let mut source = clip.source();
@@ -252,7 +299,7 @@ pub fn evaluate(
         let mut model_net = ModelNet::load(&tracker.manifest, tracker.backend(), config.threads)?;
         let (corrections, _) =
             crate::personalize::personalize(&mut model_net, &outputs, personalize_frames)?;
-        tracker.set_blendshapes(Arc::new(face.personalize(&corrections)?));
+        tracker.set_blendshapes(Arc::new(face.personalize(&corrections)?))?;
         tracker.reset();
         for (o, t) in outputs.iter().zip(&clip.truth.frames) {
             acc[2].add(&tracker.retrack(o, w, h), t);
@@ -279,24 +326,26 @@ impl Evaluation {
     /// A Markdown table.
     pub fn table(&self) -> String {
         let mut out = format!(
-            "{} held-out clips, {} frames, backend {}\n\n| variant | expression MAE | landmark NME | yaw / pitch / roll error (deg) | face found |\n|---|---|---|---|---|\n",
+            "{} held-out clips, {} frames, backend {}\n\n| variant | expression MAE | landmark NME | yaw / pitch / roll error (deg) | w jitter | landmark jitter | face found |\n|---|---|---|---|---|---|---|\n",
             self.clips,
             self.rows.first().map_or(0, |r| r.1.frames),
             self.backend
         );
         for (name, m) in &self.rows {
             out.push_str(&format!(
-                "| {name} | {:.4} | {:.2} % | {:.2} / {:.2} / {:.2} | {:.0} % |\n",
+                "| {name} | {:.4} | {:.2} % | {:.2} / {:.2} / {:.2} | {:.4} | {:.2} % | {:.0} % |\n",
                 m.expression_mae,
                 100.0 * m.landmark_nme,
                 m.pose_error_deg[0],
                 m.pose_error_deg[1],
                 m.pose_error_deg[2],
+                m.weight_jitter,
+                100.0 * m.landmark_jitter,
                 100.0 * m.detected
             ));
         }
         out.push_str(&format!(
-            "| w = 0 (reference) | {:.4} | | | |\n",
+            "| w = 0 (reference) | {:.4} | | | | | |\n",
             self.zero_weights_mae
         ));
         out

@@ -17,7 +17,7 @@ use crate::openseeface::{FaceFollower, OpenSeeFace, default_models_dir};
 use crate::params::FaceParams;
 use crate::preprocess::{Rect, sample_rect};
 use crate::record::{CameraRecord, FrameRecord};
-use crate::refine::{LandmarkObservations, RefineConfig, refine};
+use crate::refine::{LandmarkObservations, RefineConfig, Refiner};
 use crate::smooth::{FaceParamsSmoother, SmoothingConfig};
 use crate::source::Frame;
 
@@ -126,6 +126,8 @@ pub struct Tracker {
     locator: Locator,
     face: Arc<FaceModel>,
     blendshapes: Arc<PersonalizedBlendshapes>,
+    /// The landmark rows of `blendshapes`, gathered once per person.
+    refiner: Refiner,
     config: TrackerConfig,
     smoother: FaceParamsSmoother,
     last_time_s: Option<f64>,
@@ -166,6 +168,7 @@ impl Tracker {
             }
         };
         let blendshapes = Arc::new(face.template_blendshapes());
+        let refiner = Refiner::new(&blendshapes, &face.template)?;
         let smoother = FaceParamsSmoother::new(config.smoothing.clone());
         Ok(Self {
             manifest,
@@ -173,6 +176,7 @@ impl Tracker {
             locator,
             face,
             blendshapes,
+            refiner,
             config,
             smoother,
             last_time_s: None,
@@ -188,8 +192,10 @@ impl Tracker {
     }
 
     /// Refinement uses this person's blendshapes from now on (a personalized model).
-    pub fn set_blendshapes(&mut self, blendshapes: Arc<PersonalizedBlendshapes>) {
+    pub fn set_blendshapes(&mut self, blendshapes: Arc<PersonalizedBlendshapes>) -> Result<()> {
+        self.refiner = Refiner::new(&blendshapes, &self.face.template)?;
         self.blendshapes = blendshapes;
+        Ok(())
     }
 
     pub fn set_refine(&mut self, refine: Option<RefineConfig>) {
@@ -305,45 +311,15 @@ impl Tracker {
                 })??;
         times.tracknet_ms = ms(t);
         let tracknet = output.to_frame(&self.manifest, &crop, &intrinsics);
-        // 4. Refinement on the detected landmarks.
-        let t = Instant::now();
-        let refined = match (&self.config.refine, &observations) {
-            (Some(config), Some(obs)) => {
-                refine(
-                    &self.blendshapes,
-                    &self.face.template,
-                    &intrinsics,
-                    &tracknet,
-                    obs,
-                    config,
-                )?
-                .params
-            }
-            _ => tracknet,
-        };
-        times.refine_ms = ms(t);
-        if !refined.is_finite() {
-            return Err(TrackingError::NonFinite {
-                model: "refinement".into(),
-                output: "parameters".into(),
-            });
-        }
-        // 5. Smoothing (a jump back in time starts a new sequence).
-        let t = Instant::now();
-        if self.last_time_s.is_some_and(|last| time_s <= last) {
-            self.smoother.reset();
-        }
-        self.last_time_s = Some(time_s);
-        let smoothed = self.smoother.filter(time_s, &refined);
-        times.smooth_ms = ms(t);
-        let landmarks = self.project_landmarks(&smoothed, &intrinsics);
-        if landmarks.iter().any(|p| !p.is_finite()) {
-            return Err(TrackingError::NonFinite {
-                model: "tracking".into(),
-                output: "landmarks (the face is behind the camera)".into(),
-            });
-        }
-        let record = FrameRecord::with_face(index, time_s, &smoothed, &landmarks, confidence);
+        let (refined, record) = self.refine_and_smooth(
+            index,
+            time_s,
+            &tracknet,
+            observations.as_ref(),
+            &intrinsics,
+            confidence,
+            &mut times,
+        )?;
         Ok(FrameOutput {
             record,
             input: Some(input),
@@ -366,36 +342,70 @@ impl Tracker {
             return out.record.clone();
         };
         let intrinsics = self.intrinsics(width, height);
-        let refined = match (&self.config.refine, &out.observations) {
-            (Some(config), Some(obs)) => {
-                match refine(
-                    &self.blendshapes,
-                    &self.face.template,
-                    &intrinsics,
-                    &tracknet,
-                    obs,
-                    config,
-                ) {
-                    Ok(r) => r.params,
-                    Err(e) => return FrameRecord::no_face(index, time_s, Some(e.to_string())),
-                }
+        let mut times = StageTimes::default();
+        match self.refine_and_smooth(
+            index,
+            time_s,
+            &tracknet,
+            out.observations.as_ref(),
+            &intrinsics,
+            out.confidence,
+            &mut times,
+        ) {
+            Ok((_, record)) => record,
+            Err(e) => {
+                self.smoother.reset();
+                FrameRecord::no_face(index, time_s, Some(e.to_string()))
             }
-            _ => tracknet,
+        }
+    }
+
+    /// Steps 4 and 5 of a frame: refinement on the detected landmarks (when configured and
+    /// observed), then smoothing (a jump back in time starts a new sequence), then the
+    /// record. Returns the refined (unsmoothed) parameters too.
+    #[allow(clippy::too_many_arguments)]
+    fn refine_and_smooth(
+        &mut self,
+        index: usize,
+        time_s: f64,
+        tracknet: &FaceParams,
+        observations: Option<&LandmarkObservations>,
+        intrinsics: &Intrinsics,
+        confidence: f32,
+        times: &mut StageTimes,
+    ) -> Result<(FaceParams, FrameRecord)> {
+        let t = Instant::now();
+        let refined = match (&self.config.refine, observations) {
+            (Some(config), Some(obs)) => {
+                self.refiner
+                    .refine(intrinsics, tracknet, obs, config)?
+                    .params
+            }
+            _ => *tracknet,
         };
+        times.refine_ms = ms(t);
+        if !refined.is_finite() {
+            return Err(TrackingError::NonFinite {
+                model: "refinement".into(),
+                output: "parameters".into(),
+            });
+        }
+        let t = Instant::now();
         if self.last_time_s.is_some_and(|last| time_s <= last) {
             self.smoother.reset();
         }
         self.last_time_s = Some(time_s);
         let smoothed = self.smoother.filter(time_s, &refined);
-        let landmarks = self.project_landmarks(&smoothed, &intrinsics);
+        times.smooth_ms = ms(t);
+        let landmarks = self.project_landmarks(&smoothed, intrinsics);
         if landmarks.iter().any(|p| !p.is_finite()) {
-            return FrameRecord::no_face(
-                index,
-                time_s,
-                Some("the face is behind the camera".into()),
-            );
+            return Err(TrackingError::NonFinite {
+                model: "tracking".into(),
+                output: "landmarks (the face is behind the camera)".into(),
+            });
         }
-        FrameRecord::with_face(index, time_s, &smoothed, &landmarks, out.confidence)
+        let record = FrameRecord::with_face(index, time_s, &smoothed, &landmarks, confidence);
+        Ok((refined, record))
     }
 
     /// The model's 68 landmarks under `params`, in frame pixels.

@@ -177,21 +177,22 @@ fn recovers_exact_landmarks_from_a_perturbed_start() {
         refined.gamma, init.gamma,
         "gamma needs the photometric term"
     );
-    // The default priors pull towards the start, so the fit stops short of exact (about
-    // 0.4 px here), but five iterations still remove almost all of the error.
+    // The default priors hold the rotation near TrackNet's (on the held-out clips the
+    // detector's systematic offsets otherwise turn into pose error; tracking/README.md),
+    // so from a start 3 degrees off the fit stops short of exact, but five iterations
+    // still remove most of the error and do not move the rotation away from the truth.
     let (regularised, report) = run(&init, &obs, &RefineConfig::default());
     let after = rms_to(&points, &regularised);
     assert!(
-        after < 0.05 * before,
+        after < 0.15 * before,
         "default: {before} px -> {after} px ({report:?})"
     );
     assert!(report.iterations <= 5);
-    // The start was 3 degrees and 2.4 cm off; what remains is the priors' pull on the
-    // weights showing in the pose.
+    let (start_degrees, start_cm) = pose_error(&init, &truth);
     let (degrees, cm) = pose_error(&regularised, &truth);
     assert!(
-        degrees < 0.5 && cm < 0.5,
-        "default: pose off by {degrees} deg, {cm} cm"
+        degrees <= start_degrees + 1e-3 && cm < 0.5 * start_cm,
+        "default: pose off by {degrees} deg, {cm} cm (start {start_degrees} deg, {start_cm} cm)"
     );
 }
 

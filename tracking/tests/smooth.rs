@@ -210,7 +210,7 @@ fn invalid_parameters_are_reported_or_passed_through() {
         weights: OneEuroParams::new(0.0, 1.0, 1.0),
         ..SmoothingConfig::default()
     };
-    match FaceParamsSmoother::try_new(bad) {
+    match FaceParamsSmoother::try_new(bad.clone()) {
         Ok(_) => panic!("a zero cutoff was accepted"),
         Err(e) => assert!(e.to_string().contains("weights.min_cutoff"), "{e}"),
     }
