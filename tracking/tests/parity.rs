@@ -13,8 +13,11 @@ use tracking::personalize::stack;
 use tracking::preprocess::{Rect, sample_rect};
 use tracking::source::read_image;
 
+/// One fixture frame: the image, its landmarks, the training code's crop and input.
+type FixtureFrame = (image::RgbImage, Vec<Vec2>, [f32; 4], Vec<f32>);
+
 struct Fixture {
-    frames: Vec<(image::RgbImage, Vec<Vec2>, [f32; 4], Vec<f32>)>,
+    frames: Vec<FixtureFrame>,
     bytes: Vec<u8>,
 }
 

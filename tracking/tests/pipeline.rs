@@ -152,13 +152,12 @@ fn nan_network_outputs_are_reported_not_propagated() {
     let out = net.run(&Tensor::zeros(vec![2, 3, s, s])).expect("run");
     assert_eq!(out.len(), 2);
     for o in out {
-        let e = o.err().expect("NaN is an error").to_string();
+        let e = o.expect_err("NaN is an error").to_string();
         assert!(e.contains("NaN"), "{e}");
     }
     let bad = net
         .run(&Tensor::zeros(vec![1, 3, 64, 64]))
-        .err()
-        .expect("wrong size")
+        .expect_err("wrong size")
         .to_string();
     assert!(bad.contains("TrackNet takes"), "{bad}");
     let mut nan = tracking::networks::corrections_from_outputs(&[
@@ -176,7 +175,7 @@ fn nan_network_outputs_are_reported_not_propagated() {
         Tensor::zeros(vec![1, 3, 128, 128]),
         dr,
     ]);
-    let e = nan.err().expect("inf is an error").to_string();
+    let e = nan.expect_err("inf is an error").to_string();
     assert!(e.contains("dR"), "{e}");
 }
 
