@@ -364,7 +364,7 @@ mod ort_backend {
             let name = model_name(path);
             let session = Session::builder(env)
                 .and_then(|b| {
-                    b.with_optimization_level(GraphOptimizationLevel::Level3)
+                    b.with_optimization_level(GraphOptimizationLevel::All)
                         .map_err(Into::into)
                 })
                 .and_then(|b| b.with_intra_threads(threads.max(1)).map_err(Into::into))

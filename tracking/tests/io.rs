@@ -274,8 +274,6 @@ fn session_round_trips_and_bad_files_are_refused() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("not a Likeness session"), "{e}");
-    let text = String::from_utf8_lossy(&bytes[..200]).into_owned();
-    assert!(text.contains("likeness-session"));
     let future = {
         let header_len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
         let header = String::from_utf8(bytes[8..8 + header_len].to_vec()).unwrap();
