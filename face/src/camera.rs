@@ -159,27 +159,59 @@ impl Intrinsics {
     }
 }
 
+/// A head pose with its rotation matrix and the matrix's derivatives computed once, for
+/// projecting many points with their Jacobians (six sines and cosines and a dozen matrix
+/// products per pose instead of per point).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseJacobians {
+    pub pose: HeadPose,
+    pub rotation: Mat3,
+    /// dR/d(yaw), dR/d(pitch), dR/d(roll).
+    pub rotation_derivatives: [Mat3; 3],
+}
+
+impl PoseJacobians {
+    pub fn new(pose: HeadPose) -> Self {
+        Self {
+            pose,
+            rotation: pose.rotation(),
+            rotation_derivatives: euler_matrix_derivatives(pose.euler_rad),
+        }
+    }
+
+    /// Projection of model point `p` with d(pixel)/d(yaw, pitch, roll, tx, ty, tz) and
+    /// d(pixel)/dp (for chaining with dS/dw). `None` behind the camera.
+    pub fn project(
+        &self,
+        intrinsics: &Intrinsics,
+        p: Vec3,
+    ) -> Option<(Vec2, [Vec2; 6], [Vec2; 3])> {
+        let r = self.rotation;
+        let pc = r * p + self.pose.translation;
+        let pixel = intrinsics.project(pc)?;
+        let [ju, jv] = intrinsics.project_jacobian(pc)?;
+        let d_cam = |d: Vec3| Vec2::new(ju.dot(d), jv.dot(d));
+        let dr = &self.rotation_derivatives;
+        let d_pose = [
+            d_cam(dr[0] * p),
+            d_cam(dr[1] * p),
+            d_cam(dr[2] * p),
+            d_cam(Vec3::X),
+            d_cam(Vec3::Y),
+            d_cam(Vec3::Z),
+        ];
+        let d_point = [d_cam(r.x_axis), d_cam(r.y_axis), d_cam(r.z_axis)];
+        Some((pixel, d_pose, d_point))
+    }
+}
+
 /// Projection of model point `p` under `pose`, with its derivatives: d(pixel)/d(yaw, pitch,
 /// roll, tx, ty, tz) and d(pixel)/dp (for chaining with dS/dw). `None` behind the camera.
+/// For many points under one pose, build a [`PoseJacobians`] once.
 pub fn project_with_jacobians(
     intrinsics: &Intrinsics,
     pose: &HeadPose,
     p: Vec3,
 ) -> Option<(Vec2, [Vec2; 6], [Vec2; 3])> {
-    let r = pose.rotation();
-    let pc = r * p + pose.translation;
-    let pixel = intrinsics.project(pc)?;
-    let [ju, jv] = intrinsics.project_jacobian(pc)?;
-    let d_cam = |d: Vec3| Vec2::new(ju.dot(d), jv.dot(d));
-    let dr = euler_matrix_derivatives(pose.euler_rad);
-    let d_pose = [
-        d_cam(dr[0] * p),
-        d_cam(dr[1] * p),
-        d_cam(dr[2] * p),
-        d_cam(Vec3::X),
-        d_cam(Vec3::Y),
-        d_cam(Vec3::Z),
-    ];
-    let d_point = [d_cam(r.x_axis), d_cam(r.y_axis), d_cam(r.z_axis)];
-    Some((pixel, d_pose, d_point))
+    PoseJacobians::new(*pose).project(intrinsics, p)
 }

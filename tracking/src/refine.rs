@@ -50,10 +50,10 @@
 
 use std::ops::RangeInclusive;
 
-use face::camera::{HeadPose, Intrinsics, euler_matrix_derivatives};
+use face::camera::{HeadPose, Intrinsics, PoseJacobians};
 use face::sh::{SH_COEFFICIENTS, sh_basis, sh_basis_gradient};
 use face::{NUM_BLENDSHAPES, NUM_LANDMARKS, PersonalizedBlendshapes, Template};
-use glam::{DVec3, Mat3, Vec2, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use image::RgbImage;
 
 use crate::error::{Result, TrackingError};
@@ -584,8 +584,8 @@ struct Eval {
     weights: [f32; NW],
     pose: HeadPose,
     gamma: [f32; SH_COEFFICIENTS],
-    rotation: Mat3,
-    rotation_derivatives: [Mat3; 3],
+    /// The rotation and its derivatives, once per evaluation.
+    jacobians: PoseJacobians,
     /// Positions of the photometric subset's local vertices (empty without it), in f64:
     /// normals take differences of neighbouring positions ~10 cm from the origin and a few
     /// millimetres apart, where f32 would leave only four or five significant digits.
@@ -690,7 +690,8 @@ impl<'a> Problem<'a> {
         x0[..NW].iter_mut().for_each(|w| *w = w.clamp(0.0, 1.0));
         let ev = refiner.eval(&x0, None);
         for o in &used {
-            let p = ev.rotation * refiner.landmark(o.index, &ev.weights) + ev.pose.translation;
+            let p = ev.jacobians.rotation * refiner.landmark(o.index, &ev.weights)
+                + ev.pose.translation;
             if intrinsics.project(p).is_none() {
                 return Err(TrackingError::InvalidInput(format!(
                     "the initial pose puts landmark {} behind the camera (translation {})",
@@ -713,7 +714,8 @@ impl<'a> Problem<'a> {
             let projected: Vec<Vec2> = (0..NUM_LANDMARKS)
                 .filter_map(|k| {
                     intrinsics.project(
-                        ev.rotation * refiner.landmark(k, &ev.weights) + ev.pose.translation,
+                        ev.jacobians.rotation * refiner.landmark(k, &ev.weights)
+                            + ev.pose.translation,
                     )
                 })
                 .collect();
@@ -792,8 +794,9 @@ impl<'a> Problem<'a> {
                 let (w, h) = (obs.image.width() as f32, obs.image.height() as f32);
                 let used: Vec<usize> = (0..subset.len())
                     .filter(|&j| {
-                        let p = ev.rotation * ev.photo_positions[j].as_vec3() + ev.pose.translation;
-                        let n = ev.rotation * subset.normal(j, &ev.photo_positions).0;
+                        let p = ev.jacobians.rotation * ev.photo_positions[j].as_vec3()
+                            + ev.pose.translation;
+                        let n = ev.jacobians.rotation * subset.normal(j, &ev.photo_positions).0;
                         let facing = n.dot(-p.normalize_or_zero()) > 0.1;
                         let inside = intrinsics.project(p).is_some_and(|px| {
                             px.x >= 1.0 && px.y >= 1.0 && px.x <= w - 1.0 && px.y <= h - 1.0
@@ -842,11 +845,11 @@ impl<'a> Problem<'a> {
         let Some(jacobian) = jacobian else {
             let pixel = self
                 .intrinsics
-                .project(ev.rotation * point + ev.pose.translation)?;
+                .project(ev.jacobians.rotation * point + ev.pose.translation)?;
             let d = pixel - term.observed;
             return Some(term.basis.map(|b| s * b.dot(d)));
         };
-        let (pixel, d_pose, d_point) = ev.project_with_jacobians(self.intrinsics, point)?;
+        let (pixel, d_pose, d_point) = ev.jacobians.project(self.intrinsics, point)?;
         let d = pixel - term.observed;
         let [dx, dy, dz] = &self.refiner.landmark_deltas[k];
         let mut out = [0.0; 2];
@@ -878,7 +881,7 @@ impl<'a> Problem<'a> {
         let subset = photo.subset;
         let point = ev.photo_positions[j].as_vec3();
         let (normal, len) = subset.normal(j, &ev.photo_positions);
-        let n_cam = ev.rotation * normal;
+        let n_cam = ev.jacobians.rotation * normal;
         let y = sh_basis(n_cam);
         let albedo = photo.albedo[j];
         let irradiance: [f32; 3] =
@@ -886,13 +889,13 @@ impl<'a> Problem<'a> {
         let Some(jacobian) = jacobian else {
             let pixel = self
                 .intrinsics
-                .project(ev.rotation * point + ev.pose.translation)?;
+                .project(ev.jacobians.rotation * point + ev.pose.translation)?;
             let (colour, _) = sample_bilinear(photo.image, pixel);
             return Some(std::array::from_fn(|c| {
                 100.0 * (colour[c] - albedo[c] * irradiance[c].max(0.0))
             }));
         };
-        let (pixel, d_pose, d_point) = ev.project_with_jacobians(self.intrinsics, point)?;
+        let (pixel, d_pose, d_point) = ev.jacobians.project(self.intrinsics, point)?;
         let (colour, gradient) = sample_bilinear(photo.image, pixel);
         let y_gradient = sh_basis_gradient(n_cam);
 
@@ -924,7 +927,7 @@ impl<'a> Problem<'a> {
                 Vec3::ZERO
             };
             // Through n = m / |m| in model space: d n = (I - n n^T) dm / |m|, n_cam = R n.
-            let h_model = ev.rotation.transpose() * grad_y;
+            let h_model = ev.jacobians.rotation.transpose() * grad_y;
             let h = (h_model - normal * normal.dot(h_model)) / len;
             let q = Vec3::new(g.dot(d_point[0]), g.dot(d_point[1]), g.dot(d_point[2]));
             for i in 0..NW {
@@ -932,7 +935,7 @@ impl<'a> Problem<'a> {
                 row[i] = 100.0 * (q.dot(delta) - h.dot(dm[i]));
             }
             for r in 0..3 {
-                let dn = ev.rotation_derivatives[r] * normal;
+                let dn = ev.jacobians.rotation_derivatives[r] * normal;
                 row[POSE + r] = 100.0 * (g.dot(d_pose[r]) - grad_y.dot(dn));
             }
             for r in 3..6 {
@@ -1366,40 +1369,11 @@ impl Refiner {
             .unwrap_or_default();
         Eval {
             weights: p.weights,
-            rotation: p.pose.rotation(),
-            rotation_derivatives: euler_matrix_derivatives(p.pose.euler_rad),
+            jacobians: PoseJacobians::new(p.pose),
             pose: p.pose,
             gamma: p.gamma,
             photo_positions,
         }
-    }
-}
-
-impl Eval {
-    /// `face::camera::project_with_jacobians` with this evaluation's rotation and its
-    /// derivatives computed once rather than per point (they cost six sines and cosines and
-    /// a dozen matrix products each time).
-    fn project_with_jacobians(
-        &self,
-        intrinsics: &Intrinsics,
-        p: Vec3,
-    ) -> Option<(Vec2, [Vec2; 6], [Vec2; 3])> {
-        let r = self.rotation;
-        let pc = r * p + self.pose.translation;
-        let pixel = intrinsics.project(pc)?;
-        let [ju, jv] = intrinsics.project_jacobian(pc)?;
-        let d_cam = |d: Vec3| Vec2::new(ju.dot(d), jv.dot(d));
-        let dr = &self.rotation_derivatives;
-        let d_pose = [
-            d_cam(dr[0] * p),
-            d_cam(dr[1] * p),
-            d_cam(dr[2] * p),
-            d_cam(Vec3::X),
-            d_cam(Vec3::Y),
-            d_cam(Vec3::Z),
-        ];
-        let d_point = [d_cam(r.x_axis), d_cam(r.y_axis), d_cam(r.z_axis)];
-        Some((pixel, d_pose, d_point))
     }
 }
 
