@@ -2,11 +2,13 @@
 //! projected exactly from known parameters, then perturbed, noised, slid along the jaw or
 //! corrupted, and the refinement judged by how close it returns to the truth.
 
+mod common;
+
 use std::sync::OnceLock;
 
 use face::camera::{HeadPose, Intrinsics};
 use face::names::ict_index;
-use face::{BlendshapeWeights, FaceModel, NUM_LANDMARKS, PersonalizedBlendshapes, Template};
+use face::{BlendshapeWeights, NUM_LANDMARKS, PersonalizedBlendshapes, Template};
 use glam::{Vec2, Vec3};
 use tracking::refine::{
     JAW_CONTOUR, LandmarkObservations, PhotometricObservation, RefineConfig, Refiner, refine,
@@ -22,29 +24,19 @@ struct Fixture {
 fn fixture() -> &'static Fixture {
     static FIXTURE: OnceLock<Fixture> = OnceLock::new();
     FIXTURE.get_or_init(|| {
-        let path = face::template::default_template_path();
-        let template = Template::load_safetensors(&path)
-            .unwrap_or_else(|e| panic!("these tests need the template at {path:?}: {e}"));
-        let model = FaceModel::new(template);
+        let model = common::face_model();
         let blendshapes = model.template_blendshapes();
         let refiner = Refiner::new(&blendshapes, &model.template).unwrap_or_else(|e| panic!("{e}"));
         Fixture {
-            template: model.template,
+            template: model.template.clone(),
             blendshapes,
             refiner,
         }
     })
 }
 
-/// Deterministic pseudo-random numbers in [-1, 1] (no rand dependency for tests).
 fn noise(seed: u32) -> f32 {
-    let mut x = seed.wrapping_mul(0x9E37_79B9) ^ 0x85EB_CA6B;
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7FEB_352D);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846C_A68B);
-    x ^= x >> 16;
-    (x as f32 / u32::MAX as f32) * 2.0 - 1.0
+    common::noise(seed) as f32
 }
 
 fn idx(name: &str) -> usize {

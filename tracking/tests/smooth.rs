@@ -1,7 +1,11 @@
 //! Temporal smoothing against independent expectations: the closed-form first-order
 //! low-pass, exact pass-through cases, a noisy sine with known noise, and a blink.
 
+mod common;
+
 use std::f64::consts::PI;
+
+use common::noise;
 
 use face::names::ict_index;
 use glam::Vec3;
@@ -9,17 +13,6 @@ use tracking::FaceParams;
 use tracking::smooth::{
     FaceParamsSmoother, MIN_DT_S, OneEuroFilter, OneEuroParams, SmoothingConfig, smoothing_factor,
 };
-
-/// Deterministic uniform noise in [-1, 1] (no rand dependency for tests).
-fn noise(seed: u32) -> f64 {
-    let mut x = seed.wrapping_mul(0x9E37_79B9) ^ 0x85EB_CA6B;
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7FEB_352D);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846C_A68B);
-    x ^= x >> 16;
-    f64::from(x) / f64::from(u32::MAX) * 2.0 - 1.0
-}
 
 fn varied_params(k: u32) -> FaceParams {
     let mut p = FaceParams::default();
