@@ -13,6 +13,8 @@ done
 if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then
   need+=(python3-venv python3-pip)
 fi
+# pip fetches the ONNX Runtime wheel below (Debian's python3 ships without it).
+python3 -m pip --version >/dev/null 2>&1 || need+=(python3-pip)
 # ffmpeg decodes video files and webcams for `likeness track` / `personalize`.
 command -v ffmpeg >/dev/null 2>&1 || need+=(ffmpeg)
 # Node runs the Khronos glTF validator in retarget's tests (npm package gltf-validator).

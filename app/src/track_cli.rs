@@ -184,9 +184,17 @@ pub fn run_personalize(
         }
         docs.push((doc, outputs, size));
     }
-    // ModelNet over the frames of all inputs: one person.
-    let all: Vec<&FrameOutput> = docs.iter().flat_map(|(_, o, _)| o.iter()).collect();
-    let owned: Vec<FrameOutput> = all.iter().map(|o| (*o).clone()).collect();
+    // ModelNet over the frames of all inputs (one person), moved into one list rather
+    // than copied: each keeps its network input. The first input's frames come first.
+    let mut docs = docs.into_iter();
+    let Some((mut tracks, first_outputs, size)) = docs.next() else {
+        bail!("personalize needs at least one input");
+    };
+    let first_len = first_outputs.len();
+    let mut owned = first_outputs;
+    for (_, outputs, _) in docs {
+        owned.extend(outputs);
+    }
     let kind = tracker.backend();
     let mut model_net =
         tracking::networks::ModelNet::load(&tracker.manifest, kind, options.config.threads)?;
@@ -196,11 +204,10 @@ pub fn run_personalize(
     bar.finish_and_clear();
     let blendshapes = Arc::new(face.personalize(&corrections)?);
     tracker.set_blendshapes(blendshapes)?;
-    // Track again with the person's own blendshapes (refinement and smoothing only).
-    let (first_doc, first_outputs, size) = docs.remove(0);
-    let mut tracks = first_doc;
+    // Track the first input again with the person's own blendshapes (refinement and
+    // smoothing only).
     tracker.reset();
-    tracks.frames = first_outputs
+    tracks.frames = owned[..first_len]
         .iter()
         .map(|o| tracker.retrack(o, size.0, size.1))
         .collect();
