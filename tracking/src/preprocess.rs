@@ -190,23 +190,9 @@ pub fn sample_rect_into(
     let raw = image.as_raw();
     let plane = out_w * out_h;
     let inv = 1.0 / (kx * ky) as f64;
-    // Horizontal taps depend only on the column: computed once per column and sample.
-    let x_taps: Vec<(usize, usize, f64)> = (0..out_w)
-        .flat_map(|c| {
-            (0..kx).map(move |a| {
-                let x = f64::from(rect.x) + (c as f64 + (a as f64 + 0.5) / kx as f64) * step_x;
-                taps(x - 0.5, iw)
-            })
-        })
-        .collect();
-    let y_taps: Vec<(usize, usize, f64)> = (0..out_h)
-        .flat_map(|r| {
-            (0..ky).map(move |b| {
-                let y = f64::from(rect.y) + (r as f64 + (b as f64 + 0.5) / ky as f64) * step_y;
-                taps(y - 0.5, ih)
-            })
-        })
-        .collect();
+    // Taps depend only on the column (row): computed once per column (row) and sample.
+    let x_taps = axis_taps(f64::from(rect.x), step_x, kx, out_w, iw);
+    let y_taps = axis_taps(f64::from(rect.y), step_y, ky, out_h, ih);
     // Bilinear sampling is separable: each source row that any sample touches is first
     // resampled horizontally (summing its kx taps per output column), then rows are
     // blended vertically. Same arithmetic as sampling point by point, up to the order of
@@ -252,6 +238,27 @@ pub fn sample_rect_into(
         }
     }
     Ok(())
+}
+
+/// The bilinear taps of the `k` samples of each of `out_n` output pixels along one axis:
+/// sample a of pixel c sits at origin + (c + (a + 0.5) / k) * step.
+fn axis_taps(
+    origin: f64,
+    step: f64,
+    k: usize,
+    out_n: usize,
+    in_n: usize,
+) -> Vec<(usize, usize, f64)> {
+    (0..out_n)
+        .flat_map(|c| {
+            (0..k).map(move |a| {
+                taps(
+                    origin + (c as f64 + (a as f64 + 0.5) / k as f64) * step - 0.5,
+                    in_n,
+                )
+            })
+        })
+        .collect()
 }
 
 /// Bilinear taps of continuous index `t` on an axis of `n` pixels, edges repeated.
