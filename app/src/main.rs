@@ -140,8 +140,10 @@ struct TrackingArgs {
     /// onnxruntime or tract.
     #[arg(long, default_value = "auto")]
     backend: String,
-    /// Threads for ONNX Runtime.
-    #[arg(long, default_value_t = 2)]
+    /// ONNX Runtime threads per tracking network. Tracking already runs two stages at once
+    /// (decoding and landmarks on one thread, TrackNet and refinement on another), so 1
+    /// keeps a core per stage; ModelNet, which runs alone, uses all cores.
+    #[arg(long, default_value_t = 1)]
     threads: usize,
     /// How faces are found: auto, landmarks (OpenSeeFace detection) or precropped (every
     /// image is a face crop framed like the training images).

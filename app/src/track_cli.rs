@@ -2,6 +2,7 @@
 //! CSV / a personalized session out, with progress bars, and partial results kept when
 //! the footage breaks off or the user presses Ctrl-C.
 
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -9,10 +10,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::{Context, Result, bail};
 use face::FaceModel;
 use indicatif::{ProgressBar, ProgressStyle};
-use tracking::pipeline::{FrameOutput, Tracker, TrackerConfig};
+use tracking::pipeline::{FrameOutput, TrackEvent, Tracker, TrackerConfig};
 use tracking::record::{FrameRecord, TracksDocument, write_atomically};
 use tracking::session::{Session, SessionInfo};
-use tracking::source::{InputSpec, Next};
+use tracking::source::InputSpec;
 
 /// Set by Ctrl-C: stop reading footage, keep what was tracked.
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -66,23 +67,13 @@ pub fn track_input(
     let bar = progress_bar(source.len_hint(), options.progress, "tracking");
     let mut outputs = Vec::new();
     let mut size = (0, 0);
-    tracker.reset();
+    let mut first_size = None;
     let mut faces = 0usize;
-    loop {
-        if STOP.load(Ordering::SeqCst) {
-            // Ctrl-C on a live camera is how it ends; on a file it cuts the clip short.
-            if !source.is_live() {
-                doc.complete = false;
-                doc.error = Some("stopped by the user".into());
-            }
-            break;
-        }
-        if options.max_frames.is_some_and(|m| doc.frames.len() >= m) {
-            break;
-        }
-        match source.next_frame() {
-            Ok(Next::End) => break,
-            Ok(Next::Skipped(skip)) => {
+    let live = source.is_live();
+    // Decoding and landmarks run a frame ahead on a second thread (Tracker::track_source).
+    let result = tracker.track_source(source.as_mut(), |event| {
+        match event {
+            TrackEvent::Skipped(skip) => {
                 tracing::warn!("frame {}: {}", skip.index, skip.error);
                 doc.frames.push(FrameRecord::no_face(
                     skip.index,
@@ -90,33 +81,42 @@ pub fn track_input(
                     Some(skip.error.to_string()),
                 ));
             }
-            Ok(Next::Frame(frame)) => {
-                if doc.camera.is_none() {
-                    size = frame.image.dimensions();
-                    doc.camera = Some(tracker.camera_record(size.0, size.1));
-                } else if frame.image.dimensions() != size {
-                    // A folder of images of different sizes: each has its own camera.
-                    size = frame.image.dimensions();
-                    tracker.reset();
+            TrackEvent::Frame(frame, out) => {
+                // A folder of images of different sizes: each has its own camera (the
+                // tracker starts a new sequence by itself); the document names the first.
+                if first_size.is_none() {
+                    first_size = Some(frame.image.dimensions());
                 }
-                let out = tracker.process(&frame);
+                size = frame.image.dimensions();
                 if out.record.face {
                     faces += 1;
                 }
                 doc.frames.push(out.record.clone());
                 if keep_outputs {
-                    outputs.push(out);
+                    outputs.push(*out);
                 }
-            }
-            Err(e) => {
-                // The footage broke off: keep everything tracked so far.
-                doc.complete = false;
-                doc.error = Some(e.to_string());
-                break;
             }
         }
         bar.inc(1);
         bar.set_message(format!("{faces} with a face"));
+        if STOP.load(Ordering::SeqCst) {
+            // Ctrl-C on a live camera is how it ends; on a file it cuts the clip short.
+            if !live {
+                doc.complete = false;
+                doc.error = Some("stopped by the user".into());
+            }
+            return ControlFlow::Break(());
+        }
+        if options.max_frames.is_some_and(|m| doc.frames.len() >= m) {
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    });
+    doc.camera = first_size.map(|(w, h)| tracker.camera_record(w, h));
+    if let Err(e) = result {
+        // The footage broke off: keep everything tracked so far.
+        doc.complete = false;
+        doc.error = Some(e.to_string());
     }
     bar.finish_and_clear();
     Ok((doc, outputs, size))
@@ -196,8 +196,13 @@ pub fn run_personalize(
         owned.extend(outputs);
     }
     let kind = tracker.backend();
-    let mut model_net =
-        tracking::networks::ModelNet::load(&tracker.manifest, kind, options.config.threads)?;
+    // ModelNet runs alone (tracking has finished): all cores.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut model_net = tracking::networks::ModelNet::load(
+        &tracker.manifest,
+        kind,
+        options.config.threads.max(cores),
+    )?;
     let bar = progress_bar(None, options.progress, "personalizing");
     bar.enable_steady_tick(std::time::Duration::from_millis(120));
     let (corrections, picked) = tracking::personalize::personalize(&mut model_net, &owned, frames)?;

@@ -6,6 +6,7 @@
 //! `python -m likeness_train.clips`, which training/setup.sh runs; LIKENESS_CLIPS overrides
 //! the folder). Set LIKENESS_BENCH_FRAMES to limit the frames per pass.
 
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Arc;
@@ -16,7 +17,7 @@ use tracking::backend::{BackendChoice, BackendKind, onnxruntime_status};
 use tracking::evaluate::{Clip, default_clips_dir};
 use tracking::networks::{Manifest, ModelNet, default_networks_dir};
 use tracking::personalize::stack;
-use tracking::pipeline::{StageTimes, Tracker, TrackerConfig};
+use tracking::pipeline::{StageTimes, TrackEvent, Tracker, TrackerConfig};
 use tracking::preprocess::{Rect, sample_rect};
 use tracking::source::{FfmpegSource, FrameSource, Next, read_image};
 
@@ -104,6 +105,50 @@ fn run_pipeline(
     Ok(row)
 }
 
+/// Steady-state frame interval of [`Tracker::track_source`] (decoding and landmarks on one
+/// thread, the rest on another): the wall time from the first frame out to the last over
+/// the frames in between, so ffmpeg's start and the first frame's detection are not
+/// counted. Median of 3 measured passes after a warm-up pass; returns (frames, ms).
+fn run_pipelined(
+    face: &Arc<FaceModel>,
+    video: &Path,
+    clip: &Clip,
+    kind: BackendKind,
+    threads: usize,
+    limit: usize,
+) -> Result<(usize, f64), String> {
+    let config = TrackerConfig {
+        backend: BackendChoice::Only(kind),
+        threads,
+        fov_deg: Some(clip.fov_deg()),
+        ..TrackerConfig::default()
+    };
+    let mut tracker = Tracker::new(face.clone(), config, true).map_err(|e| e.to_string())?;
+    let mut intervals = Vec::new();
+    let mut frames = 0usize;
+    for pass in 0..4 {
+        let mut source = FfmpegSource::video(video).map_err(|e| e.to_string())?;
+        let mut out_times = Vec::new();
+        tracker
+            .track_source(&mut source, |_: TrackEvent| {
+                out_times.push(Instant::now());
+                if out_times.len() >= limit {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            })
+            .map_err(|e| e.to_string())?;
+        if let (true, Some(first), Some(last)) = (pass > 0, out_times.first(), out_times.last())
+            && out_times.len() > 1
+        {
+            frames = out_times.len();
+            intervals.push((*last - *first).as_secs_f64() * 1e3 / (frames - 1) as f64);
+        }
+    }
+    Ok((frames, median(intervals)))
+}
+
 fn main() {
     if std::env::args().any(|a| a == "--list") {
         return;
@@ -165,7 +210,7 @@ fn main() {
     if kinds.contains(&BackendKind::OnnxRuntime) {
         runs.insert(1, (BackendKind::OnnxRuntime, 1));
     }
-    for (kind, threads) in runs {
+    for (kind, threads) in runs.iter().copied() {
         match run_pipeline(&face, &video, &clip, kind, threads, limit) {
             Ok(r) => {
                 let col = |f: fn(&StageTimes) -> f64| median(r.stages.iter().map(f).collect());
@@ -196,6 +241,25 @@ fn main() {
                     r.total.len()
                 );
             }
+            Err(e) => {
+                println!("| {kind} | failed: {e} |");
+                std::process::exit(1);
+            }
+        }
+    }
+    println!(
+        "\n## Pipelined (`Tracker::track_source`: decode and landmarks on one thread, crop, TrackNet, refinement and smoothing on another)\n"
+    );
+    println!(
+        "| backend | frames | ms per frame (steady state, median of 3 passes) | fps |\n|---|---|---|---|"
+    );
+    for (kind, threads) in runs.iter().copied() {
+        match run_pipelined(&face, &video, &clip, kind, threads, limit) {
+            Ok((frames, interval_ms)) => println!(
+                "| {kind} ({threads} thread{}) | {frames} | {interval_ms:.2} | {:.0} |",
+                if threads > 1 { "s" } else { "" },
+                1000.0 / interval_ms
+            ),
             Err(e) => {
                 println!("| {kind} | failed: {e} |");
                 std::process::exit(1);

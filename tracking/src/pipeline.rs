@@ -1,8 +1,10 @@
 //! The per-frame tracker: locate the face, crop as in training, TrackNet, refine on the
 //! landmarks, smooth; and personalization over a whole clip (section 3 and 4 of the paper).
 
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::mpsc;
 use std::time::Instant;
 
 use face::camera::{Intrinsics, focal_length_px};
@@ -19,7 +21,7 @@ use crate::preprocess::{Rect, sample_rect};
 use crate::record::{CameraRecord, FrameRecord};
 use crate::refine::{LandmarkObservations, RefineConfig, Refiner};
 use crate::smooth::{FaceParamsSmoother, SmoothingConfig};
-use crate::source::Frame;
+use crate::source::{Frame, FrameError, FrameSource, Next};
 
 /// How faces are found in a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -119,11 +121,71 @@ enum Locator {
     PreCropped,
 }
 
+/// Where the face is in one frame, as the locating stage hands it on.
+struct Located {
+    /// The detected landmarks in iBUG order; `None` for a pre-cropped image.
+    ibug68: Option<[Option<(Vec2, f32)>; crate::openseeface::IBUG_LANDMARK_COUNT]>,
+    confidence: f32,
+    detect_ms: f64,
+    landmarks_ms: f64,
+}
+
+impl Locator {
+    /// `None`: the frame shows no face.
+    fn locate(&mut self, image: &RgbImage) -> Result<Option<Box<Located>>> {
+        match self {
+            Locator::PreCropped => Ok(Some(Box::new(Located {
+                ibug68: None,
+                confidence: 1.0,
+                detect_ms: 0.0,
+                landmarks_ms: 0.0,
+            }))),
+            Locator::Landmarks(follower) => Ok(follower.step(image)?.map(|found| {
+                Box::new(Located {
+                    ibug68: Some(found.landmarks.to_ibug68()),
+                    confidence: found.landmarks.mean_confidence,
+                    detect_ms: found.detect_ms,
+                    landmarks_ms: found.landmarks_ms,
+                })
+            })),
+        }
+    }
+
+    fn reset(&mut self) {
+        if let Locator::Landmarks(f) = self {
+            f.reset();
+        }
+    }
+}
+
+/// What the locating stage of [`Tracker::track_source`] sends on.
+enum Staged {
+    Frame(Frame, Result<Option<Box<Located>>>),
+    Skipped(FrameError),
+    Broken(TrackingError),
+}
+
+/// Frames decoded and located ahead of the frame being finished: one keeps both stages
+/// busy; more would only add latency.
+const PIPELINE_DEPTH: usize = 1;
+
+/// One step of [`Tracker::track_source`].
+pub enum TrackEvent {
+    /// A decoded frame and what tracking made of it.
+    Frame(Frame, Box<FrameOutput>),
+    /// A frame that could not be decoded (the footage goes on).
+    Skipped(FrameError),
+}
+
 /// Tracks frames one after another.
 pub struct Tracker {
     pub manifest: Manifest,
     track_net: TrackNet,
     locator: Locator,
+    /// Whether faces are found by landmarks in footage (so the frame camera is the
+    /// footage's), kept apart from `locator` because that is lent to a worker thread in
+    /// [`Tracker::track_source`].
+    footage_camera: bool,
     face: Arc<FaceModel>,
     blendshapes: Arc<PersonalizedBlendshapes>,
     /// The landmark rows of `blendshapes`, gathered once per person.
@@ -173,6 +235,7 @@ impl Tracker {
         Ok(Self {
             manifest,
             track_net,
+            footage_camera: matches!(locator, Locator::Landmarks(_)),
             locator,
             face,
             blendshapes,
@@ -188,7 +251,7 @@ impl Tracker {
     }
 
     pub fn uses_landmarks(&self) -> bool {
-        matches!(self.locator, Locator::Landmarks(_))
+        self.footage_camera
     }
 
     /// Refinement uses this person's blendshapes from now on (a personalized model).
@@ -209,17 +272,16 @@ impl Tracker {
 
     /// The frame camera for an image of this size.
     pub fn intrinsics(&self, width: u32, height: u32) -> Intrinsics {
-        match self.locator {
-            Locator::PreCropped => {
-                // The image is the crop: the training camera, whatever the user said.
-                let fov = self.config.fov_deg.unwrap_or(self.manifest.nominal_fov_deg);
-                Intrinsics::centered(width, height, focal_length_px(width.min(height), fov))
-            }
-            Locator::Landmarks(_) => Intrinsics::from_fov(
+        if self.footage_camera {
+            Intrinsics::from_fov(
                 width,
                 height,
                 self.config.fov_deg.unwrap_or(DEFAULT_FOOTAGE_FOV_DEG),
-            ),
+            )
+        } else {
+            // The image is the crop: the training camera, whatever the user said.
+            let fov = self.config.fov_deg.unwrap_or(self.manifest.nominal_fov_deg);
+            Intrinsics::centered(width, height, focal_length_px(width.min(height), fov))
         }
     }
 
@@ -236,9 +298,7 @@ impl Tracker {
 
     /// Forgets the face (a new clip starts; nothing carries over).
     pub fn reset(&mut self) {
-        if let Locator::Landmarks(f) = &mut self.locator {
-            f.reset();
-        }
+        self.locator.reset();
         self.smoother.reset();
         self.last_time_s = None;
     }
@@ -265,24 +325,36 @@ impl Tracker {
         index: usize,
         time_s: f64,
     ) -> Result<FrameOutput> {
-        let mut times = StageTimes::default();
         crate::source::check_frame_size(image.width(), image.height())?;
+        let located = self.locator.locate(image)?;
+        self.finish(image, index, time_s, located)
+    }
+
+    /// Everything after locating the face: crop, TrackNet, refinement, smoothing.
+    fn finish(
+        &mut self,
+        image: &RgbImage,
+        index: usize,
+        time_s: f64,
+        located: Option<Box<Located>>,
+    ) -> Result<FrameOutput> {
+        let Some(located) = located else {
+            self.smoother.reset();
+            return Ok(FrameOutput::none(FrameRecord::no_face(index, time_s, None)));
+        };
+        let mut times = StageTimes {
+            detect_ms: located.detect_ms,
+            landmarks_ms: located.landmarks_ms,
+            ..StageTimes::default()
+        };
         let intrinsics = self.intrinsics(image.width(), image.height());
-        // 1. Where is the face?
-        let (crop, observations, confidence) = match &mut self.locator {
-            Locator::PreCropped => {
+        let (crop, observations, confidence) = match located.ibug68 {
+            None => {
                 let side = image.width().min(image.height()) as f32;
                 let centre = Vec2::new(image.width() as f32, image.height() as f32) * 0.5;
                 (Rect::square(centre, side), None, 1.0)
             }
-            Locator::Landmarks(follower) => {
-                let Some(found) = follower.step(image)? else {
-                    self.smoother.reset();
-                    return Ok(FrameOutput::none(FrameRecord::no_face(index, time_s, None)));
-                };
-                times.detect_ms = found.detect_ms;
-                times.landmarks_ms = found.landmarks_ms;
-                let ibug = found.landmarks.to_ibug68();
+            Some(ibug) => {
                 let points: Vec<Vec2> = ibug
                     .iter()
                     .take(crate::preprocess::CROP_LANDMARKS)
@@ -290,15 +362,15 @@ impl Tracker {
                     .collect();
                 let crop = self.manifest.crop.crop_for_landmarks(&points)?;
                 let observations = LandmarkObservations::from_ibug68(&ibug);
-                (crop, Some(observations), found.landmarks.mean_confidence)
+                (crop, Some(observations), located.confidence)
             }
         };
-        // 2. The crop, as in training.
+        // The crop, as in training.
         let t = Instant::now();
         let s = self.manifest.input_size;
         let input = sample_rect(image, crop, s, s, self.manifest.normalisation)?;
         times.crop_ms = ms(t);
-        // 3. TrackNet.
+        // TrackNet.
         let t = Instant::now();
         let output: TrackNetOutput =
             self.track_net
@@ -330,6 +402,92 @@ impl Tracker {
             confidence,
             times,
         })
+    }
+
+    /// Tracks a whole source in a two-stage pipeline: one thread decodes frames and
+    /// locates the face (detector, landmarks) while this one crops, runs TrackNet, refines
+    /// and smooths the frame before. On two cores this overlaps the landmark network with
+    /// TrackNet, so frames come out at the pace of the slower stage rather than of both
+    /// added up; the results are the same as calling [`Tracker::process`] frame by frame
+    /// (each stage keeps its own order).
+    ///
+    /// `on_event` sees every frame in order, and returns [`ControlFlow::Break`] to stop
+    /// early (Ctrl-C, a frame limit). A frame whose size differs from the one before starts
+    /// a new sequence (a folder of mixed images). Returns the source's error if the
+    /// footage broke off; what was delivered before stays delivered.
+    pub fn track_source(
+        &mut self,
+        source: &mut dyn FrameSource,
+        mut on_event: impl FnMut(TrackEvent) -> ControlFlow<()>,
+    ) -> Result<()> {
+        self.reset();
+        // The locator moves to the worker thread for the length of the call.
+        let mut locator = std::mem::replace(&mut self.locator, Locator::PreCropped);
+        let (sender, receiver) = mpsc::sync_channel::<Staged>(PIPELINE_DEPTH);
+        let result = std::thread::scope(|scope| {
+            let locator = &mut locator;
+            scope.spawn(move || {
+                let mut size = None;
+                loop {
+                    let item = match source.next_frame() {
+                        Ok(Next::End) => break,
+                        Ok(Next::Skipped(skip)) => Staged::Skipped(skip),
+                        Ok(Next::Frame(frame)) => {
+                            let dims = frame.image.dimensions();
+                            if size.is_some_and(|s| s != dims) {
+                                locator.reset();
+                            }
+                            size = Some(dims);
+                            let located = crate::source::check_frame_size(dims.0, dims.1)
+                                .and_then(|()| locator.locate(&frame.image));
+                            Staged::Frame(frame, located)
+                        }
+                        Err(e) => {
+                            let _ = sender.send(Staged::Broken(e));
+                            break;
+                        }
+                    };
+                    // The receiver is gone when the caller stopped: so does this stage.
+                    if sender.send(item).is_err() {
+                        break;
+                    }
+                }
+            });
+            let mut size = None;
+            while let Ok(item) = receiver.recv() {
+                let flow = match item {
+                    // The smoothing filters go on over the gap (they know the times).
+                    Staged::Skipped(skip) => on_event(TrackEvent::Skipped(skip)),
+                    Staged::Frame(frame, located) => {
+                        let dims = frame.image.dimensions();
+                        if size.is_some_and(|s| s != dims) {
+                            self.smoother.reset();
+                            self.last_time_s = None;
+                        }
+                        size = Some(dims);
+                        let output = located
+                            .and_then(|l| self.finish(&frame.image, frame.index, frame.time_s, l))
+                            .unwrap_or_else(|e| {
+                                self.smoother.reset();
+                                FrameOutput::none(FrameRecord::no_face(
+                                    frame.index,
+                                    frame.time_s,
+                                    Some(e.to_string()),
+                                ))
+                            });
+                        on_event(TrackEvent::Frame(frame, Box::new(output)))
+                    }
+                    Staged::Broken(e) => return Err(e),
+                };
+                if flow.is_break() {
+                    break;
+                }
+            }
+            drop(receiver);
+            Ok(())
+        });
+        self.locator = locator;
+        result
     }
 
     /// Refines and smooths a frame again from its TrackNet output and landmarks, with the

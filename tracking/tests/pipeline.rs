@@ -223,3 +223,118 @@ fn refinement_brings_the_model_closer_to_the_detected_landmarks_on_a_real_face()
         "refinement gained too little: {a:?}"
     );
 }
+
+/// The clip's first frames, then a frame that cannot be decoded, more frames, and then a
+/// broken stream (as when a video file is cut off).
+struct ScriptedSource {
+    inner: tracking::source::ImageFiles,
+    delivered: usize,
+    skip_at: usize,
+    break_at: usize,
+}
+
+impl FrameSource for ScriptedSource {
+    fn next_frame(&mut self) -> tracking::Result<Next> {
+        self.delivered += 1;
+        if self.delivered == self.break_at {
+            return Err(tracking::TrackingError::InvalidInput(
+                "the stream broke".into(),
+            ));
+        }
+        match self.inner.next_frame()? {
+            Next::Frame(f) if self.delivered == self.skip_at => {
+                Ok(Next::Skipped(tracking::source::FrameError {
+                    index: f.index,
+                    time_s: f.time_s,
+                    error: tracking::TrackingError::InvalidInput("corrupt frame".into()),
+                }))
+            }
+            other => Ok(other),
+        }
+    }
+    fn len_hint(&self) -> Option<usize> {
+        None
+    }
+    fn fps(&self) -> f64 {
+        self.inner.fps()
+    }
+    fn describe(&self) -> String {
+        "scripted".into()
+    }
+}
+
+#[test]
+fn the_two_stage_pipeline_gives_the_frame_by_frame_results_and_keeps_them_when_footage_breaks() {
+    use std::ops::ControlFlow;
+    use tracking::pipeline::TrackEvent;
+    let clip = clip();
+    let config = TrackerConfig {
+        backend: BackendChoice::Only(BackendKind::Tract),
+        fov_deg: Some(clip.fov_deg()),
+        locator: LocatorChoice::Landmarks,
+        // Smoothing on: its state must see the frames in order, as frame by frame.
+        ..TrackerConfig::default()
+    };
+    let mut tracker = Tracker::new(face_model(), config, true).expect("tracker");
+    // Frame by frame, as the pipeline should see it: frames 1, 2, 4, 5, 6 (the 3rd is
+    // unreadable and simply absent), then the stream breaks at the 7th read.
+    let mut expected = Vec::new();
+    let mut source = clip.source();
+    for k in 1..=6 {
+        match source.next_frame().expect("frame") {
+            Next::Frame(_) if k == 3 => expected.push(None),
+            Next::Frame(f) => expected.push(Some(tracker.process(&f).record)),
+            _ => panic!("clip too short"),
+        }
+    }
+    let mut scripted = ScriptedSource {
+        inner: clip.source(),
+        delivered: 0,
+        skip_at: 3,
+        break_at: 7,
+    };
+    let mut streamed = Vec::new();
+    let result = tracker.track_source(&mut scripted, |event| {
+        streamed.push(match event {
+            TrackEvent::Frame(_, out) => Some(out.record),
+            TrackEvent::Skipped(skip) => {
+                assert_eq!(skip.index, 2, "the unreadable frame keeps its index");
+                None
+            }
+        });
+        ControlFlow::Continue(())
+    });
+    let error = result.expect_err("the broken stream is reported");
+    assert!(error.to_string().contains("the stream broke"), "{error}");
+    assert_eq!(
+        streamed.len(),
+        6,
+        "everything before the break is delivered"
+    );
+    for (k, (a, b)) in expected.iter().zip(&streamed).enumerate() {
+        assert_eq!(
+            a, b,
+            "frame {k} differs between the pipeline and frame by frame"
+        );
+    }
+    assert!(expected.iter().flatten().all(|r| r.face));
+
+    // Stopping early: the callback's Break ends the call after that frame.
+    let mut seen = 0;
+    tracker
+        .track_source(&mut clip.source(), |_| {
+            seen += 1;
+            if seen == 2 {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        })
+        .expect("a clean stop is not an error");
+    assert_eq!(seen, 2);
+    // The tracker is whole again afterwards: frame by frame still finds the face.
+    let Next::Frame(f) = clip.source().next_frame().expect("frame") else {
+        panic!("no frame")
+    };
+    assert!(tracker.process(&f).record.face);
+}
