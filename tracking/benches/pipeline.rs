@@ -58,6 +58,22 @@ struct Row {
     frames_with_face: usize,
 }
 
+/// A tracker for the clip as footage (detection and landmarks) on one backend.
+fn footage_tracker(
+    face: &Arc<FaceModel>,
+    clip: &Clip,
+    kind: BackendKind,
+    threads: usize,
+) -> Result<Tracker, String> {
+    let config = TrackerConfig {
+        backend: BackendChoice::Only(kind),
+        threads,
+        fov_deg: Some(clip.fov_deg()),
+        ..TrackerConfig::default()
+    };
+    Tracker::new(face.clone(), config, true).map_err(|e| e.to_string())
+}
+
 fn run_pipeline(
     face: &Arc<FaceModel>,
     video: &Path,
@@ -66,13 +82,7 @@ fn run_pipeline(
     threads: usize,
     limit: usize,
 ) -> Result<Row, String> {
-    let config = TrackerConfig {
-        backend: BackendChoice::Only(kind),
-        threads,
-        fov_deg: Some(clip.fov_deg()),
-        ..TrackerConfig::default()
-    };
-    let mut tracker = Tracker::new(face.clone(), config, true).map_err(|e| e.to_string())?;
+    let mut tracker = footage_tracker(face, clip, kind, threads)?;
     let mut row = Row {
         backend: kind,
         decode: vec![],
@@ -117,13 +127,7 @@ fn run_pipelined(
     threads: usize,
     limit: usize,
 ) -> Result<(usize, f64), String> {
-    let config = TrackerConfig {
-        backend: BackendChoice::Only(kind),
-        threads,
-        fov_deg: Some(clip.fov_deg()),
-        ..TrackerConfig::default()
-    };
-    let mut tracker = Tracker::new(face.clone(), config, true).map_err(|e| e.to_string())?;
+    let mut tracker = footage_tracker(face, clip, kind, threads)?;
     let mut intervals = Vec::new();
     let mut frames = 0usize;
     for pass in 0..4 {
