@@ -5,6 +5,8 @@
 //! behaviour (flags, messages, the scripted demo) and none of the model's mathematics,
 //! which live in `face`.
 
+pub mod colormap;
+pub mod demo;
 pub mod fixture;
 pub mod headless;
 pub mod puppet_view;
