@@ -135,3 +135,145 @@ fn studio_snapshot_with_jaw_open() {
     harness.run_steps(3);
     harness.snapshot("studio_jaw_open");
 }
+
+/// A small built-in demo session (12 frames), made once for the tests that need one.
+fn demo_session() -> Arc<likeness::studio_session::StudioSession> {
+    static SESSION: OnceLock<Arc<likeness::studio_session::StudioSession>> = OnceLock::new();
+    SESSION
+        .get_or_init(|| {
+            let scene = scene();
+            let face = Arc::new(face::FaceModel::new(scene.model.template.clone()));
+            let config = likeness::demo::DemoConfig {
+                frames: 12,
+                personalize_frames: 2,
+                ..likeness::demo::DemoConfig::default()
+            };
+            let demo = likeness::demo::build_demo(&scene, face, config, |_| {})
+                .unwrap_or_else(|e| panic!("demo: {e:#}"));
+            Arc::new(likeness::studio_session::StudioSession::from_demo(
+                &scene.model,
+                demo,
+            ))
+        })
+        .clone()
+}
+
+fn session_harness() -> Harness<'static, StudioApp> {
+    let scene = scene();
+    let session = demo_session();
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(1100.0, 700.0))
+        .wgpu()
+        .build_eframe(move |cc| {
+            let mut app = StudioApp::new(cc, scene).with_session(session);
+            app.state.show_timings = false;
+            app.state.playback.playing = false;
+            app
+        });
+    harness.run_steps(2);
+    harness
+}
+
+#[test]
+fn the_timeline_steps_plays_and_drives_the_face_with_the_tracked_weights() {
+    let mut harness = session_harness();
+    let session = demo_session();
+    assert_eq!(
+        harness.state().state.panel,
+        likeness::studio::Panel::Input,
+        "a session opens on its input"
+    );
+    harness.get_by_label("Next").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().state.playback.frame, 1);
+    harness.get_by_label("Previous").click();
+    harness.get_by_label("Previous").click();
+    harness.run_steps(2);
+    assert_eq!(
+        harness.state().state.playback.frame,
+        11,
+        "wraps to the last frame"
+    );
+    // The face shows the tracked weights of the current frame.
+    assert_eq!(harness.state().state.weights, session.weights(11).0);
+    // Play: frames advance at the footage's rate.
+    harness.get_by_label("Play").click();
+    harness.run_steps(1);
+    assert!(harness.state().state.playback.playing);
+    for _ in 0..10 {
+        harness.step();
+    }
+    assert_ne!(
+        harness.state().state.playback.frame,
+        11,
+        "playback moved on"
+    );
+    // Keyboard: space pauses.
+    harness.key_press(egui::Key::Space);
+    harness.run_steps(1);
+    assert!(!harness.state().state.playback.playing);
+    // Switching to the face panel and back.
+    harness.get_by_label("Face").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().state.panel, likeness::studio::Panel::Face);
+    harness.get_by_label("Input").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().state.panel, likeness::studio::Panel::Input);
+    assert!(harness.state().state.error.is_none());
+}
+
+#[test]
+fn the_input_panel_draws_the_frame_with_its_overlay() {
+    let mut harness = session_harness();
+    harness.run_steps(2);
+    // Overlay off, then on: the picture must change where the landmarks are.
+    let with_overlay = harness.render().expect("render");
+    // The golden: the demo's first frame with detected (amber) and model (cyan) landmarks,
+    // the face box with its confidence and the crop (grey).
+    harness.snapshot("studio_input_overlay");
+    harness.get_by_label("Detected landmarks").click();
+    harness.get_by_label("Model landmarks").click();
+    harness.get_by_label("Face box and crop").click();
+    harness.run_steps(2);
+    let without = harness.render().expect("render");
+    let changed = with_overlay
+        .pixels()
+        .zip(without.pixels())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(changed > 500, "the overlay changed only {changed} pixels");
+}
+
+#[test]
+fn the_maps_panel_shows_each_learned_map() {
+    let mut harness = session_harness();
+    harness.get_by_label("Maps").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().state.panel, likeness::studio::Panel::Maps);
+    let mut pictures = Vec::new();
+    for label in [
+        "Static albedo",
+        "Dynamic albedo",
+        "Frame albedo",
+        "Attention mask",
+        "Shape correction",
+    ] {
+        harness.get_by_label(label).click();
+        harness.run_steps(2);
+        assert!(
+            harness.state().state.error.is_none(),
+            "{label}: {:?}",
+            harness.state().state.error
+        );
+        pictures.push(harness.render().expect("render"));
+    }
+    // Every map looks different from the one before it.
+    for (k, pair) in pictures.windows(2).enumerate() {
+        let changed = pair[0]
+            .pixels()
+            .zip(pair[1].pixels())
+            .filter(|(a, b)| a != b)
+            .count();
+        assert!(changed > 1000, "map {k} -> {}: {changed} pixels", k + 1);
+    }
+}

@@ -103,3 +103,30 @@ pub fn write_demo_views(scene: &Scene, out_dir: &Path, size: (u32, u32)) -> Resu
     }
     Ok(written)
 }
+
+/// The session's input as files: the first frame, the middle one (mid-performance) and the
+/// frames ModelNet saw, as `input_NNNN.png`.
+pub fn write_session_views(
+    session: &crate::studio_session::StudioSession,
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(out_dir)
+        .with_context(|| format!("cannot create {}", out_dir.display()))?;
+    let mut picked = vec![0, session.frame_count() / 2];
+    picked.extend(&session.selected_frames);
+    picked.sort_unstable();
+    picked.dedup();
+    let mut written = Vec::new();
+    for k in picked {
+        let Some(frame) = session.frames.get(k) else {
+            continue;
+        };
+        let path = out_dir.join(format!("input_{k:04}.png"));
+        save_png(
+            &image::DynamicImage::ImageRgb8(frame.clone()).to_rgba8(),
+            &path,
+        )?;
+        written.push(path);
+    }
+    Ok(written)
+}

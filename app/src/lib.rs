@@ -13,4 +13,7 @@ pub mod puppet_view;
 pub mod retarget_cli;
 pub mod scene;
 pub mod studio;
+pub mod studio_panels;
+pub mod studio_session;
 pub mod track_cli;
+pub mod uv_panel;

@@ -3,11 +3,13 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
+use likeness::demo::DemoConfig;
 use likeness::headless::{
-    ensure_output_folder, offscreen, render_view, save_png, write_demo_views,
+    ensure_output_folder, offscreen, render_view, save_png, write_demo_views, write_session_views,
 };
 use likeness::scene::{Orbit, Scene, StudioView, parse_weights};
 use likeness::studio::StudioApp;
+use likeness::studio_session::StudioSession;
 
 /// Likeness: a personalized face model you can see, measure and export.
 #[derive(Parser)]
@@ -304,11 +306,11 @@ fn main() -> Result<()> {
                 "No display found: writing the studio's demo views to {} instead.",
                 out.display()
             );
-            report_written(&write_demo_views(&load_scene()?, &out, (800, 800))?);
+            report_written(&write_all_demo_views(&load_scene()?, &out)?);
         }
         Command::Studio { .. } => run_studio(load_scene()?)?,
         Command::Demo { out, .. } => {
-            report_written(&write_demo_views(&load_scene()?, &out, (800, 800))?)
+            report_written(&write_all_demo_views(&load_scene()?, &out)?);
         }
         Command::ExportFixture { out } => {
             let path = likeness::fixture::export_fixture(&load_scene()?.model, &out)?;
@@ -353,7 +355,25 @@ fn report_written(paths: &[PathBuf]) {
     }
 }
 
+/// The built-in demo session: a synthetic person rendered, tracked and personalized by the
+/// real pipeline (about 10 s on 2 cores).
+fn demo_session(scene: &Scene) -> Result<Arc<StudioSession>> {
+    let face = Arc::new(face::FaceModel::new(scene.model.template.clone()));
+    let demo = likeness::demo::build_demo(scene, face, DemoConfig::default(), |step| {
+        tracing::info!("demo: {step}")
+    })?;
+    Ok(Arc::new(StudioSession::from_demo(&scene.model, demo)))
+}
+
+/// What `demo --headless` writes: the 3D views and the demo session's input frames.
+fn write_all_demo_views(scene: &Scene, out: &std::path::Path) -> Result<Vec<PathBuf>> {
+    let mut written = write_demo_views(scene, out, (800, 800))?;
+    written.extend(write_session_views(demo_session(scene)?.as_ref(), out)?);
+    Ok(written)
+}
+
 fn run_studio(scene: Scene) -> Result<()> {
+    let session = demo_session(&scene);
     let scene = Arc::new(scene);
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Wgpu,
@@ -365,7 +385,17 @@ fn run_studio(scene: Scene) -> Result<()> {
     eframe::run_native(
         "Likeness studio",
         options,
-        Box::new(move |cc| Ok(Box::new(StudioApp::new(cc, scene)))),
+        Box::new(move |cc| {
+            let app = StudioApp::new(cc, scene);
+            Ok(Box::new(match session {
+                Ok(session) => app.with_session(session),
+                Err(e) => {
+                    let mut app = app;
+                    app.state.error = Some(format!("the demo could not be built: {e:#}"));
+                    app
+                }
+            }))
+        }),
     )
     .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))
 }

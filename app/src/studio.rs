@@ -11,6 +11,19 @@ use renderer::{FaceRenderer, RenderOptions};
 const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
 use crate::scene::{Orbit, Scene, StudioView, demo_weights, frame_params};
+use crate::studio_panels::{PlaybackState, fit_rect, paint_overlay, timeline_ui};
+use crate::studio_session::StudioSession;
+
+/// The studio's main panels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Panel {
+    /// The 3D face with the blendshape sliders.
+    Face,
+    /// The input frame with the tracking overlay.
+    Input,
+    /// The learned maps in UV space: albedo, dynamic albedo, masks, shape corrections.
+    Maps,
+}
 
 /// The studio's state, separate from GPU resources so tests can inspect it.
 pub struct StudioState {
@@ -31,6 +44,8 @@ pub struct StudioState {
     /// to run).
     pub show_timings: bool,
     pub error: Option<String>,
+    pub panel: Panel,
+    pub playback: PlaybackState,
 }
 
 impl Default for StudioState {
@@ -47,6 +62,8 @@ impl Default for StudioState {
             frame_interval_ms: 0.0,
             show_timings: true,
             error: None,
+            panel: Panel::Face,
+            playback: PlaybackState::default(),
         }
     }
 }
@@ -64,6 +81,10 @@ pub struct StudioApp {
     pub state: StudioState,
     scene: Arc<Scene>,
     viewport: Option<Viewport>,
+    session: Option<Arc<StudioSession>>,
+    /// The input frame on the GPU, with the index it shows.
+    frame_texture: Option<(usize, egui::TextureHandle)>,
+    pub uv_panel: crate::uv_panel::UvPanel,
 }
 
 impl StudioApp {
@@ -72,6 +93,9 @@ impl StudioApp {
             state: StudioState::default(),
             scene,
             viewport: None,
+            session: None,
+            frame_texture: None,
+            uv_panel: crate::uv_panel::UvPanel::default(),
         };
         match cc.wgpu_render_state.as_ref() {
             Some(rs) => match FaceRenderer::with_options(
@@ -101,6 +125,134 @@ impl StudioApp {
             }
         }
         app
+    }
+
+    /// Shows a tracked session: the input panel, the timeline, and the face replaying the
+    /// tracked weights.
+    pub fn with_session(mut self, session: Arc<StudioSession>) -> Self {
+        self.session = Some(session);
+        self.frame_texture = None;
+        self.uv_panel.clear();
+        self.state.playback = PlaybackState {
+            playing: true,
+            ..PlaybackState::default()
+        };
+        self.state.playing_demo = false;
+        self.state.panel = Panel::Input;
+        self
+    }
+
+    pub fn session(&self) -> Option<&Arc<StudioSession>> {
+        self.session.as_ref()
+    }
+
+    /// The input frame with its overlay, fitted to the panel.
+    fn input_ui(&mut self, ui: &mut egui::Ui) {
+        let Some(session) = self.session.clone() else {
+            ui.centered_and_justified(|ui| ui.label("No footage: open a session or run the demo"));
+            return;
+        };
+        ui.horizontal(|ui| {
+            let p = &mut self.state.playback;
+            ui.checkbox(&mut p.show_detected, "Detected landmarks");
+            ui.checkbox(&mut p.show_model, "Model landmarks");
+            ui.checkbox(&mut p.show_boxes, "Face box and crop");
+        });
+        let k = self
+            .state
+            .playback
+            .frame
+            .min(session.frame_count().saturating_sub(1));
+        let Some(frame) = session.frames.get(k) else {
+            ui.label("The session has no frames");
+            return;
+        };
+        let size = [frame.width(), frame.height()];
+        if self
+            .frame_texture
+            .as_ref()
+            .is_none_or(|(shown, _)| *shown != k)
+        {
+            let image =
+                egui::ColorImage::from_rgb([size[0] as usize, size[1] as usize], frame.as_raw());
+            match self.frame_texture.as_mut() {
+                Some((shown, texture)) => {
+                    texture.set(image, egui::TextureOptions::LINEAR);
+                    *shown = k;
+                }
+                None => {
+                    let texture =
+                        ui.ctx()
+                            .load_texture("input frame", image, egui::TextureOptions::LINEAR);
+                    self.frame_texture = Some((k, texture));
+                }
+            }
+        }
+        let Some((_, texture)) = self.frame_texture.as_ref() else {
+            return;
+        };
+        let rect = fit_rect(ui.available_rect_before_wrap(), size);
+        let response = ui.allocate_rect(ui.available_rect_before_wrap(), egui::Sense::hover());
+        let painter = ui.painter_at(response.rect);
+        painter.image(
+            texture.id(),
+            rect,
+            egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
+            egui::Color32::WHITE,
+        );
+        paint_overlay(
+            &painter,
+            rect,
+            size,
+            &session.overlay(k),
+            &self.state.playback,
+        );
+    }
+
+    /// The person's learned maps in UV space, for the selected blendshape and frame.
+    fn maps_ui(&mut self, ui: &mut egui::Ui) {
+        let Some(session) = self.session.clone() else {
+            return;
+        };
+        let frame = self.state.playback.frame;
+        let weights = session.weights(frame);
+        if let Some(error) = self.uv_panel.ui(
+            ui,
+            &self.scene.model,
+            self.scene.albedo.face(),
+            &session.corrections,
+            self.state.selected,
+            frame,
+            &weights,
+        ) {
+            self.state.error = Some(error);
+        }
+    }
+
+    /// Space plays or pauses, the arrows step frames, Tab switches panels.
+    fn shortcuts(&mut self, ctx: &egui::Context) {
+        let frames = self.session.as_ref().map_or(0, |s| s.frame_count());
+        if ctx.egui_wants_keyboard_input() {
+            return; // typing in the search box
+        }
+        ctx.input(|i| {
+            if i.key_pressed(egui::Key::Space) {
+                self.state.playback.playing = !self.state.playback.playing;
+            }
+            if i.key_pressed(egui::Key::ArrowRight) {
+                self.state.playback.step(1, frames);
+            }
+            if i.key_pressed(egui::Key::ArrowLeft) {
+                self.state.playback.step(-1, frames);
+            }
+            if i.key_pressed(egui::Key::Tab) && frames > 0 {
+                self.state.panel = match self.state.panel {
+                    Panel::Input => Panel::Face,
+                    Panel::Face => Panel::Maps,
+                    Panel::Maps => Panel::Input,
+                };
+            }
+        });
     }
 
     /// Sliders for the 53 blendshapes, filtered by the search text.
@@ -151,6 +303,22 @@ impl StudioApp {
 
     fn toolbar_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
+            if self.session.is_some() {
+                ui.label("Panel");
+                for (panel, label) in [
+                    (Panel::Input, "Input"),
+                    (Panel::Face, "Face"),
+                    (Panel::Maps, "Maps"),
+                ] {
+                    if ui
+                        .selectable_label(self.state.panel == panel, label)
+                        .clicked()
+                    {
+                        self.state.panel = panel;
+                    }
+                }
+                ui.separator();
+            }
             ui.label("View");
             let selected = self.state.selected;
             for view in [
@@ -298,7 +466,20 @@ impl StudioApp {
 impl eframe::App for StudioApp {
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         self.state.frame_interval_ms = ui.input(|i| i.unstable_dt) * 1000.0;
-        if self.state.playing_demo {
+        self.shortcuts(ui.ctx());
+        if let Some(session) = self.session.clone() {
+            let dt = f64::from(ui.input(|i| i.stable_dt));
+            self.state
+                .playback
+                .advance(dt, session.fps, session.frame_count());
+            if self.state.playback.playing {
+                ui.ctx().request_repaint();
+            }
+            // The face replays the tracked performance unless the user holds a slider.
+            if !self.state.playing_demo {
+                self.state.weights = session.weights(self.state.playback.frame).0;
+            }
+        } else if self.state.playing_demo {
             let dt = ui.input(|i| i.stable_dt) as f64;
             self.state.demo_time_secs += dt.min(0.1);
             self.state.weights = demo_weights(self.state.demo_time_secs);
@@ -318,6 +499,20 @@ impl eframe::App for StudioApp {
                 });
             });
         }
-        egui::CentralPanel::default().show(ui, |ui| self.viewport_ui(ui, frame));
+        if let Some(session) = self.session.clone() {
+            egui::Panel::bottom("timeline")
+                .show(ui, |ui| timeline_ui(ui, &mut self.state.playback, &session));
+        }
+        match self.state.panel {
+            Panel::Input if self.session.is_some() => {
+                egui::CentralPanel::default().show(ui, |ui| self.input_ui(ui));
+            }
+            Panel::Maps if self.session.is_some() => {
+                egui::CentralPanel::default().show(ui, |ui| self.maps_ui(ui));
+            }
+            _ => {
+                egui::CentralPanel::default().show(ui, |ui| self.viewport_ui(ui, frame));
+            }
+        }
     }
 }

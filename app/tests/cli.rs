@@ -140,6 +140,18 @@ fn the_headless_demo_writes_every_view() {
             "{name}: only {face} non-background pixels"
         );
     }
+    // The demo session's input: the synthetic person's clip at the demo camera's size.
+    let input = image::open(dir.join("input_0000.png"))
+        .expect("the demo's first input frame")
+        .to_rgb8();
+    assert_eq!(input.dimensions(), (640, 480));
+    let inputs = std::fs::read_dir(&dir)
+        .expect("output folder")
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with("input_"))
+        .count();
+    // First, middle and the frames ModelNet saw (some may coincide).
+    assert!(inputs >= 3, "{inputs} input frames written");
 }
 
 #[test]

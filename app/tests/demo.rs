@@ -7,6 +7,7 @@ use face::BlendshapeWeights;
 use glam::{Vec2, Vec3};
 use likeness::demo::{DemoConfig, build_demo, demo_motion, landmark_nme, synthetic_person};
 use likeness::scene::Scene;
+use likeness::studio_session::{StudioSession, correction_sizes_mm};
 
 fn scene() -> Scene {
     Scene::load(None).unwrap_or_else(|e| panic!("the demo needs the template: {e}"))
@@ -122,6 +123,45 @@ fn the_demo_is_tracked_and_personalized_by_the_real_pipeline() {
     eprintln!("jawOpen correlation {corr:.2}");
     assert!(corr > 0.5, "jawOpen correlation {corr}");
     assert_eq!(tracked.len(), 24);
+
+    // The studio's view of it.
+    let session = StudioSession::from_demo(&scene.model, demo);
+    assert_eq!(session.frame_count(), 24);
+    let overlay = session.overlay(5);
+    assert_eq!(overlay.model.len(), 68);
+    assert!(overlay.detected.len() >= 60, "{}", overlay.detected.len());
+    assert!(overlay.face_box.is_some() && overlay.crop.is_some());
+    assert!(overlay.confidence.is_some_and(|c| c > 0.5));
+    // Correction sizes are sorted largest first and finite.
+    let order = session.by_correction_size();
+    assert!(
+        order
+            .windows(2)
+            .all(|p| session.correction_mm[p[0]] >= session.correction_mm[p[1]])
+    );
+    assert!(session.correction_mm.iter().all(|v| v.is_finite()));
+}
+
+#[test]
+fn correction_sizes_are_zero_for_the_template_and_bounded_by_the_peak_of_the_shape_correction() {
+    let scene = scene();
+    let template = scene.model.template_blendshapes();
+    assert!(
+        correction_sizes_mm(&scene.model, &template)
+            .iter()
+            .all(|v| *v == 0.0)
+    );
+    // F samples A_i dS_i by bilinear interpolation (a convex combination) and A_i <= 1, so
+    // no vertex moves further than the peak of dS_i: 4.5 mm for jawOpen in the demo person.
+    let truth = synthetic_person(&scene.model, scene.albedo.face(), 7);
+    let person = scene.model.personalize(&truth).expect("personalize");
+    let sizes = correction_sizes_mm(&scene.model, &person);
+    let jaw = face::names::ict_index("jawOpen").expect("jawOpen");
+    assert!(
+        sizes[jaw] > 0.5 && sizes[jaw] <= 4.5 + 1e-3,
+        "{}",
+        sizes[jaw]
+    );
 }
 
 fn correlation(a: &[f32], b: &[f32]) -> f32 {
@@ -131,4 +171,49 @@ fn correlation(a: &[f32], b: &[f32]) -> f32 {
     let va: f32 = a.iter().map(|x| (x - ma).powi(2)).sum();
     let vb: f32 = b.iter().map(|y| (y - mb).powi(2)).sum();
     cov / (va * vb).sqrt().max(1e-9)
+}
+
+#[test]
+fn uv_maps_of_the_template_person_are_the_mean_albedo_and_zero_corrections() {
+    use likeness::uv_panel::{Legend, UvLayer, UvScales, layer_image};
+    let scene = scene();
+    let zero = face::PersonalCorrections::zeros();
+    let scales = UvScales::new(&scene.model, &zero);
+    // Floors, since there is nothing to scale.
+    assert_eq!((scales.dynamic_albedo, scales.shape_mm), (0.01, 0.1));
+    let neutral = BlendshapeWeights::default();
+    let (image, legend) = layer_image(
+        &scene.model,
+        scene.albedo.face(),
+        &zero,
+        &scales,
+        UvLayer::StaticAlbedo,
+        0,
+        &neutral,
+    )
+    .expect("static albedo");
+    assert_eq!(legend, Legend::Colour);
+    assert_eq!(image, likeness::colormap::albedo_image(scene.albedo.face()));
+    // A zero correction is the bottom of the colour map everywhere.
+    let (image, _) = layer_image(
+        &scene.model,
+        scene.albedo.face(),
+        &zero,
+        &scales,
+        UvLayer::ShapeCorrection,
+        3,
+        &neutral,
+    )
+    .expect("shape correction");
+    let bottom = likeness::colormap::sequential(0.0, 1.0);
+    assert!(image.pixels().all(|p| p.0[..3] == bottom));
+    // The demo person's scales are the peaks of its maps.
+    let truth = synthetic_person(&scene.model, scene.albedo.face(), 7);
+    let scales = UvScales::new(&scene.model, &truth);
+    assert!(
+        scales.shape_mm > 1.0 && scales.shape_mm <= 4.5 + 1e-3,
+        "{}",
+        scales.shape_mm
+    );
+    assert!(scales.dynamic_albedo > 0.01 && scales.dynamic_albedo <= 0.12 + 1e-4);
 }
