@@ -267,6 +267,8 @@ fn the_maps_panel_shows_each_learned_map() {
         );
         pictures.push(harness.render().expect("render"));
     }
+    // The golden: the shape correction map of the selected blendshape with its colour bar.
+    harness.snapshot("studio_maps_shape_correction");
     // Every map looks different from the one before it.
     for (k, pair) in pictures.windows(2).enumerate() {
         let changed = pair[0]
@@ -276,4 +278,24 @@ fn the_maps_panel_shows_each_learned_map() {
             .count();
         assert!(changed > 1000, "map {k} -> {}: {changed} pixels", k + 1);
     }
+}
+
+#[test]
+fn the_lighting_and_motion_panel_plots_curves_and_switches_names() {
+    let mut harness = session_harness();
+    harness.get_by_label("Lighting and motion").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().state.panel, likeness::studio::Panel::Motion);
+    harness.get_by_label("ARKit").click();
+    harness.run_steps(2);
+    let panel = &harness.state().motion_panel;
+    assert!(panel.arkit);
+    assert_eq!(
+        panel.channels.len(),
+        4,
+        "the same four curves under ARKit names"
+    );
+    assert!(harness.state().state.error.is_none());
+    // The golden: the lit sphere of frame 0 and four weight curves with the playhead.
+    harness.snapshot("studio_lighting_and_motion");
 }

@@ -9,6 +9,7 @@ pub mod colormap;
 pub mod demo;
 pub mod fixture;
 pub mod headless;
+pub mod motion_panel;
 pub mod puppet_view;
 pub mod retarget_cli;
 pub mod scene;

@@ -23,6 +23,8 @@ pub enum Panel {
     Input,
     /// The learned maps in UV space: albedo, dynamic albedo, masks, shape corrections.
     Maps,
+    /// The frame's lighting on a sphere and the weight curves over time.
+    Motion,
 }
 
 /// The studio's state, separate from GPU resources so tests can inspect it.
@@ -85,6 +87,7 @@ pub struct StudioApp {
     /// The input frame on the GPU, with the index it shows.
     frame_texture: Option<(usize, egui::TextureHandle)>,
     pub uv_panel: crate::uv_panel::UvPanel,
+    pub motion_panel: crate::motion_panel::MotionPanel,
 }
 
 impl StudioApp {
@@ -96,6 +99,7 @@ impl StudioApp {
             session: None,
             frame_texture: None,
             uv_panel: crate::uv_panel::UvPanel::default(),
+            motion_panel: crate::motion_panel::MotionPanel::default(),
         };
         match cc.wgpu_render_state.as_ref() {
             Some(rs) => match FaceRenderer::with_options(
@@ -249,7 +253,8 @@ impl StudioApp {
                 self.state.panel = match self.state.panel {
                     Panel::Input => Panel::Face,
                     Panel::Face => Panel::Maps,
-                    Panel::Maps => Panel::Input,
+                    Panel::Maps => Panel::Motion,
+                    Panel::Motion => Panel::Input,
                 };
             }
         });
@@ -309,6 +314,7 @@ impl StudioApp {
                     (Panel::Input, "Input"),
                     (Panel::Face, "Face"),
                     (Panel::Maps, "Maps"),
+                    (Panel::Motion, "Lighting and motion"),
                 ] {
                     if ui
                         .selectable_label(self.state.panel == panel, label)
@@ -509,6 +515,18 @@ impl eframe::App for StudioApp {
             }
             Panel::Maps if self.session.is_some() => {
                 egui::CentralPanel::default().show(ui, |ui| self.maps_ui(ui));
+            }
+            Panel::Motion => {
+                if let Some(session) = self.session.clone() {
+                    egui::CentralPanel::default().show(ui, |ui| {
+                        let frame = self.state.playback.frame;
+                        if let Some(k) = self.motion_panel.ui(ui, &session, frame) {
+                            self.state
+                                .playback
+                                .step(k as isize - frame as isize, session.frame_count());
+                        }
+                    });
+                }
             }
             _ => {
                 egui::CentralPanel::default().show(ui, |ui| self.viewport_ui(ui, frame));
