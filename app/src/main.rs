@@ -366,9 +366,17 @@ fn demo_session(scene: &Scene) -> Result<Arc<StudioSession>> {
 }
 
 /// What `demo --headless` writes: the 3D views and the demo session's input frames.
+/// The 3D views need only the template; the session views also need the networks and
+/// the OpenSeeFace models, so without them the 3D views are still written and the reason
+/// is printed.
 fn write_all_demo_views(scene: &Scene, out: &std::path::Path) -> Result<Vec<PathBuf>> {
     let mut written = write_demo_views(scene, out, (800, 800))?;
-    written.extend(write_session_views(demo_session(scene)?.as_ref(), out)?);
+    match demo_session(scene) {
+        Ok(session) => written.extend(write_session_views(session.as_ref(), out)?),
+        Err(e) => {
+            eprintln!("The demo session could not be built, so its panels are missing: {e:#}")
+        }
+    }
     Ok(written)
 }
 

@@ -177,3 +177,28 @@ fn export_fixture_writes_the_tensors_training_needs() {
         "no temporary file left behind"
     );
 }
+
+#[test]
+fn without_the_landmark_models_the_headless_demo_still_writes_the_3d_views() {
+    let dir = out_dir("demo-no-models");
+    let empty = out_dir("no-models");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_likeness"))
+        .args(["demo", "--headless", "--out", dir.to_str().unwrap()])
+        .env("LIKENESS_MODELS", &empty)
+        .env(
+            "XDG_RUNTIME_DIR",
+            std::env::temp_dir().join("likeness-xdg-tests"),
+        )
+        .env_remove("LIKENESS_FACEMODEL")
+        .output()
+        .expect("run likeness");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.join("shaded_neutral.png").is_file());
+    assert!(!dir.join("input_0000.png").exists());
+    let message = stderr(&o);
+    assert!(
+        message.contains("demo session could not be built")
+            && message.to_lowercase().contains("openseeface"),
+        "{message}"
+    );
+}
