@@ -299,3 +299,71 @@ fn the_lighting_and_motion_panel_plots_curves_and_switches_names() {
     // The golden: the lit sphere of frame 0 and four weight curves with the playhead.
     harness.snapshot("studio_lighting_and_motion");
 }
+
+#[test]
+fn the_blendshapes_panel_selects_searches_and_shows_the_correction() {
+    use likeness::blendshape_panel::row_label;
+    let mut harness = session_harness();
+    let session = demo_session();
+    harness.get_by_label("Blendshapes").click();
+    harness.run_steps(2);
+    assert_eq!(
+        harness.state().state.panel,
+        likeness::studio::Panel::Blendshapes
+    );
+    let before = harness.render().expect("render");
+    // Select the blendshape with the largest personal correction, listed first.
+    let largest = session.by_correction_size()[0];
+    assert_ne!(
+        harness.state().state.selected,
+        largest,
+        "pick a different one"
+    );
+    harness.get_by_label(&row_label(&session, largest)).click();
+    harness.run_steps(3);
+    assert_eq!(harness.state().state.selected, largest);
+    assert!(
+        harness.state().state.error.is_none(),
+        "{:?}",
+        harness.state().state.error
+    );
+    let selected = harness.render().expect("render");
+    let changed = before
+        .pixels()
+        .zip(selected.pixels())
+        .filter(|(a, b)| a.0.iter().zip(b.0.iter()).any(|(x, y)| x.abs_diff(*y) > 8))
+        .count();
+    assert!(
+        changed > 2_000,
+        "selecting another blendshape must change the views ({changed} pixels)"
+    );
+    // The golden: template beside personalized at weight 1 and the correction heatmap (mm)
+    // with its colour bar.
+    harness.snapshot("studio_blendshapes");
+
+    // The mask toggle swaps the heatmap for A_i on the mesh.
+    harness.get_by_label("Show the attention mask").click();
+    harness.run_steps(3);
+    assert!(harness.state().blendshape_panel.show_mask);
+    let mask = harness.render().expect("render");
+    let changed = selected
+        .pixels()
+        .zip(mask.pixels())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(changed > 2_000, "the mask view changed {changed} pixels");
+
+    // Searching narrows the list to matching names.
+    harness.get_by_role(Role::TextInput).focus();
+    harness.run_steps(1);
+    harness.get_by_role(Role::TextInput).type_text("blink");
+    harness.run_steps(3);
+    let blink_l = ict_index("eyeBlink_L").unwrap();
+    let jaw = ict_index("jawOpen").unwrap();
+    assert!(
+        harness
+            .query_by_label(&row_label(&session, blink_l))
+            .is_some()
+    );
+    assert!(harness.query_by_label(&row_label(&session, jaw)).is_none());
+}

@@ -5,9 +5,11 @@
 //! behaviour (flags, messages, the scripted demo) and none of the model's mathematics,
 //! which live in `face`.
 
+pub mod blendshape_panel;
 pub mod colormap;
 pub mod demo;
 pub mod fixture;
+pub mod gpu_view;
 pub mod headless;
 pub mod motion_panel;
 pub mod puppet_view;

@@ -5,11 +5,12 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use face::{ICT_NAMES, NUM_BLENDSHAPES};
-use renderer::{FaceRenderer, RenderOptions};
+use renderer::FaceRenderer;
 
-/// Colour format of the 3D view's texture (display-encoded, as the renderer expects).
-const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
-
+use crate::blendshape_panel::BlendshapePanel;
+use crate::gpu_view::{
+    VIEW_FORMAT, ViewTarget, available_pixels, interactive_options, orbit_input,
+};
 use crate::scene::{Orbit, Scene, StudioView, demo_weights, frame_params};
 use crate::studio_panels::{PlaybackState, fit_rect, paint_overlay, timeline_ui};
 use crate::studio_session::StudioSession;
@@ -21,6 +22,9 @@ pub enum Panel {
     Face,
     /// The input frame with the tracking overlay.
     Input,
+    /// The 53 blendshapes with the person's corrections: template beside personalized,
+    /// the correction heatmap in mm or the attention mask.
+    Blendshapes,
     /// The learned maps in UV space: albedo, dynamic albedo, masks, shape corrections.
     Maps,
     /// The frame's lighting on a sphere and the weight curves over time.
@@ -73,7 +77,7 @@ impl Default for StudioState {
 /// GPU side of the 3D view: the face renderer and the texture egui shows.
 struct Viewport {
     face: FaceRenderer,
-    target: Option<(wgpu::Texture, egui::TextureId, [u32; 2])>,
+    target: ViewTarget,
     /// The blendshape whose mask A_i is on the GPU, so it is uploaded once per selection,
     /// not every frame.
     uploaded_mask: Option<usize>,
@@ -88,6 +92,7 @@ pub struct StudioApp {
     frame_texture: Option<(usize, egui::TextureHandle)>,
     pub uv_panel: crate::uv_panel::UvPanel,
     pub motion_panel: crate::motion_panel::MotionPanel,
+    pub blendshape_panel: BlendshapePanel,
 }
 
 impl StudioApp {
@@ -100,25 +105,21 @@ impl StudioApp {
             frame_texture: None,
             uv_panel: crate::uv_panel::UvPanel::default(),
             motion_panel: crate::motion_panel::MotionPanel::default(),
+            blendshape_panel: BlendshapePanel::default(),
         };
         match cc.wgpu_render_state.as_ref() {
             Some(rs) => match FaceRenderer::with_options(
                 &rs.device,
                 &rs.queue,
                 VIEW_FORMAT,
-                // No MSAA in the interactive view: on a software rasteriser 4x costs about
-                // half the frame (renderer bench); screenshots keep 4x.
-                RenderOptions {
-                    sample_count: 1,
-                    ..RenderOptions::for_adapter(&rs.adapter, VIEW_FORMAT)
-                },
+                interactive_options(rs),
                 &app.scene.mesh,
                 &app.scene.textures,
             ) {
                 Ok(face) => {
                     app.viewport = Some(Viewport {
                         face,
-                        target: None,
+                        target: ViewTarget::default(),
                         uploaded_mask: None,
                     })
                 }
@@ -137,6 +138,7 @@ impl StudioApp {
         self.session = Some(session);
         self.frame_texture = None;
         self.uv_panel.clear();
+        self.blendshape_panel.clear();
         self.state.playback = PlaybackState {
             playing: true,
             ..PlaybackState::default()
@@ -252,7 +254,8 @@ impl StudioApp {
             if i.key_pressed(egui::Key::Tab) && frames > 0 {
                 self.state.panel = match self.state.panel {
                     Panel::Input => Panel::Face,
-                    Panel::Face => Panel::Maps,
+                    Panel::Face => Panel::Blendshapes,
+                    Panel::Blendshapes => Panel::Maps,
                     Panel::Maps => Panel::Motion,
                     Panel::Motion => Panel::Input,
                 };
@@ -313,6 +316,7 @@ impl StudioApp {
                 for (panel, label) in [
                     (Panel::Input, "Input"),
                     (Panel::Face, "Face"),
+                    (Panel::Blendshapes, "Blendshapes"),
                     (Panel::Maps, "Maps"),
                     (Panel::Motion, "Lighting and motion"),
                 ] {
@@ -325,26 +329,30 @@ impl StudioApp {
                 }
                 ui.separator();
             }
-            ui.label("View");
-            let selected = self.state.selected;
-            for view in [
-                StudioView::Shaded,
-                StudioView::Albedo,
-                StudioView::Normals,
-                StudioView::Wireframe,
-                StudioView::Landmarks,
-                StudioView::Mask(selected),
-            ] {
-                let label = if matches!(view, StudioView::Mask(_)) {
-                    "Mask".to_owned()
-                } else {
-                    view.label()
-                };
-                if ui
-                    .selectable_label(self.state.view == view, label)
-                    .clicked()
-                {
-                    self.state.view = view;
+            // The view modes belong to the face view; other panels have their own controls.
+            let face_shown = self.session.is_none() || self.state.panel == Panel::Face;
+            if face_shown {
+                ui.label("View");
+                let selected = self.state.selected;
+                for view in [
+                    StudioView::Shaded,
+                    StudioView::Albedo,
+                    StudioView::Normals,
+                    StudioView::Wireframe,
+                    StudioView::Landmarks,
+                    StudioView::Mask(selected),
+                ] {
+                    let label = if matches!(view, StudioView::Mask(_)) {
+                        "Mask".to_owned()
+                    } else {
+                        view.label()
+                    };
+                    if ui
+                        .selectable_label(self.state.view == view, label)
+                        .clicked()
+                    {
+                        self.state.view = view;
+                    }
                 }
             }
             if self.state.show_timings {
@@ -356,7 +364,9 @@ impl StudioApp {
                     self.state.frame_time_ms
                 ));
             }
-            if let StudioView::Mask(i) = self.state.view {
+            if let StudioView::Mask(i) = self.state.view
+                && face_shown
+            {
                 ui.separator();
                 ui.label(format!("mask A of {}", ICT_NAMES[i]));
             }
@@ -364,8 +374,7 @@ impl StudioApp {
     }
 
     fn viewport_ui(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
-        let available = ui.available_size();
-        let size = [available.x.max(16.0) as u32, available.y.max(16.0) as u32];
+        let size = available_pixels(ui);
         let (Some(viewport), Some(rs)) = (self.viewport.as_mut(), frame.wgpu_render_state()) else {
             ui.centered_and_justified(|ui| {
                 ui.label(
@@ -392,47 +401,7 @@ impl StudioApp {
                 Err(e) => self.state.error = Some(e.to_string()),
             }
         }
-        // (Re)create the target texture when the view size changes.
-        if viewport.target.as_ref().is_none_or(|t| t.2 != size) {
-            let texture = rs.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("studio 3D view"),
-                size: wgpu::Extent3d {
-                    width: size[0],
-                    height: size[1],
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: VIEW_FORMAT,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                    | wgpu::TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
-            });
-            let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-            let mut egui_renderer = rs.renderer.write();
-            let id = match viewport.target.take() {
-                Some((_, id, _)) => {
-                    egui_renderer.update_egui_texture_from_wgpu_texture(
-                        &rs.device,
-                        &view,
-                        wgpu::FilterMode::Linear,
-                        id,
-                    );
-                    id
-                }
-                None => egui_renderer.register_native_texture(
-                    &rs.device,
-                    &view,
-                    wgpu::FilterMode::Linear,
-                ),
-            };
-            viewport.target = Some((texture, id, size));
-        }
-        let Some((texture, id, _)) = viewport.target.as_ref() else {
-            return;
-        };
-        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        let (view, id) = viewport.target.prepare(rs, size, "studio 3D view");
         let params = frame_params(self.state.view, &self.state.orbit, size[0], size[1]);
         let mut encoder = rs
             .device
@@ -451,21 +420,35 @@ impl StudioApp {
         self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
 
         let response = ui.add(
-            egui::Image::new((*id, egui::vec2(size[0] as f32, size[1] as f32)))
+            egui::Image::new((id, egui::vec2(size[0] as f32, size[1] as f32)))
                 .sense(egui::Sense::drag()),
         );
-        if response.dragged() {
-            let delta = response.drag_delta();
-            self.state.orbit.yaw_deg =
-                (self.state.orbit.yaw_deg + delta.x * 0.4).clamp(-90.0, 90.0);
-            self.state.orbit.pitch_deg =
-                (self.state.orbit.pitch_deg + delta.y * 0.4).clamp(-60.0, 60.0);
+        orbit_input(ui, &response, &mut self.state.orbit);
+    }
+
+    /// The selected blendshape: template, personalized and correction views.
+    fn blendshapes_ui(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
+        let (Some(session), Some(viewport), Some(rs)) = (
+            self.session.clone(),
+            self.viewport.as_mut(),
+            frame.wgpu_render_state(),
+        ) else {
+            ui.label("No 3D view or no session");
+            return;
+        };
+        let started = Instant::now();
+        if let Some(error) = self.blendshape_panel.views_ui(
+            ui,
+            rs,
+            &mut viewport.face,
+            &self.scene,
+            &session,
+            self.state.selected,
+            &mut self.state.orbit,
+        ) {
+            self.state.error = Some(error);
         }
-        if response.hovered() {
-            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
-            self.state.orbit.distance_cm =
-                (self.state.orbit.distance_cm - scroll * 0.1).clamp(30.0, 200.0);
-        }
+        self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
     }
 }
 
@@ -494,7 +477,13 @@ impl eframe::App for StudioApp {
         egui::Panel::top("toolbar").show(ui, |ui| self.toolbar_ui(ui));
         egui::Panel::left("blendshapes")
             .default_size(330.0)
-            .show(ui, |ui| self.blendshape_list_ui(ui));
+            .show(ui, |ui| match self.session.clone() {
+                Some(session) if self.state.panel == Panel::Blendshapes => {
+                    self.blendshape_panel
+                        .list_ui(ui, &session, &mut self.state.selected);
+                }
+                _ => self.blendshape_list_ui(ui),
+            });
         if let Some(error) = self.state.error.clone() {
             egui::Panel::bottom("errors").show(ui, |ui| {
                 ui.horizontal(|ui| {
@@ -512,6 +501,11 @@ impl eframe::App for StudioApp {
         match self.state.panel {
             Panel::Input if self.session.is_some() => {
                 egui::CentralPanel::default().show(ui, |ui| self.input_ui(ui));
+            }
+            Panel::Blendshapes if self.session.is_some() => {
+                let dt = f64::from(ui.input(|i| i.stable_dt));
+                self.blendshape_panel.advance(dt);
+                egui::CentralPanel::default().show(ui, |ui| self.blendshapes_ui(ui, frame));
             }
             Panel::Maps if self.session.is_some() => {
                 egui::CentralPanel::default().show(ui, |ui| self.maps_ui(ui));

@@ -1,0 +1,98 @@
+//! A wgpu texture that a renderer draws into and egui shows as an image: the studio has
+//! several 3D views (the face, the template and personalized blendshapes side by side,
+//! the puppet), each needing its own target, re-created when the view is resized.
+
+/// Colour format of every 3D view's texture (display-encoded, as the renderer expects).
+pub const VIEW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+
+struct Target {
+    texture: wgpu::Texture,
+    id: egui::TextureId,
+    size: [u32; 2],
+}
+
+/// One 3D view's render target, registered with egui.
+#[derive(Default)]
+pub struct ViewTarget {
+    target: Option<Target>,
+}
+
+impl ViewTarget {
+    /// The texture view to render into and the egui id to show, `size` pixels; the texture
+    /// is re-created (keeping its egui id) when the size changes.
+    pub fn prepare(
+        &mut self,
+        rs: &egui_wgpu::RenderState,
+        size: [u32; 2],
+        label: &str,
+    ) -> (wgpu::TextureView, egui::TextureId) {
+        let size = [size[0].max(1), size[1].max(1)];
+        if let Some(t) = self.target.as_ref().filter(|t| t.size == size) {
+            return (
+                t.texture
+                    .create_view(&wgpu::TextureViewDescriptor::default()),
+                t.id,
+            );
+        }
+        let texture = rs.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width: size[0],
+                height: size[1],
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: VIEW_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        let mut egui_renderer = rs.renderer.write();
+        let id = match self.target.take() {
+            Some(old) => {
+                egui_renderer.update_egui_texture_from_wgpu_texture(
+                    &rs.device,
+                    &view,
+                    wgpu::FilterMode::Linear,
+                    old.id,
+                );
+                old.id
+            }
+            None => {
+                egui_renderer.register_native_texture(&rs.device, &view, wgpu::FilterMode::Linear)
+            }
+        };
+        self.target = Some(Target { texture, id, size });
+        (view, id)
+    }
+}
+
+/// The size in whole pixels of the space `ui` has left, at least 16 x 16.
+pub fn available_pixels(ui: &egui::Ui) -> [u32; 2] {
+    let available = ui.available_size();
+    [available.x.max(16.0) as u32, available.y.max(16.0) as u32]
+}
+
+/// Renderer options for interactive views: no MSAA, since on a software rasteriser 4x costs
+/// about half the frame (renderer bench); screenshots written by the CLI keep 4x.
+pub fn interactive_options(rs: &egui_wgpu::RenderState) -> renderer::RenderOptions {
+    renderer::RenderOptions {
+        sample_count: 1,
+        ..renderer::RenderOptions::for_adapter(&rs.adapter, VIEW_FORMAT)
+    }
+}
+
+/// Dragging a view turns the head, scrolling over it moves the camera in and out.
+pub fn orbit_input(ui: &egui::Ui, response: &egui::Response, orbit: &mut crate::scene::Orbit) {
+    if response.dragged() {
+        let delta = response.drag_delta();
+        orbit.yaw_deg = (orbit.yaw_deg + delta.x * 0.4).clamp(-90.0, 90.0);
+        orbit.pitch_deg = (orbit.pitch_deg + delta.y * 0.4).clamp(-60.0, 60.0);
+    }
+    if response.hovered() {
+        let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+        orbit.distance_cm = (orbit.distance_cm - scroll * 0.1).clamp(30.0, 200.0);
+    }
+}
