@@ -244,6 +244,176 @@ fn the_input_panel_draws_the_frame_with_its_overlay() {
     assert!(changed > 500, "the overlay changed only {changed} pixels");
 }
 
+/// Mean absolute difference per channel, in levels, of `a` and `b` over `rect` (pixels).
+fn mean_abs_diff(a: &image::RgbaImage, b: &image::RgbaImage, rect: [u32; 4]) -> f64 {
+    mean_abs_diff_shifted(a, b, rect, [0, 0])
+}
+
+/// The same with `b` read `shift` pixels away: `a(x, y)` against `b(x + dx, y + dy)`.
+fn mean_abs_diff_shifted(
+    a: &image::RgbaImage,
+    b: &image::RgbaImage,
+    rect: [u32; 4],
+    shift: [i32; 2],
+) -> f64 {
+    let [x0, y0, x1, y1] = rect;
+    let (mut sum, mut n) = (0.0f64, 0u64);
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let (xs, ys) = (
+                x.saturating_add_signed(shift[0]),
+                y.saturating_add_signed(shift[1]),
+            );
+            let (p, q) = (a.get_pixel(x, y), b.get_pixel(xs, ys));
+            for c in 0..3 {
+                sum += f64::from(p[c].abs_diff(q[c]));
+                n += 1;
+            }
+        }
+    }
+    sum / n.max(1) as f64
+}
+
+#[test]
+fn the_reconstruction_overlay_lies_on_the_face_and_blends_by_opacity() {
+    let mut harness = session_harness();
+    let session = demo_session();
+    for label in ["Detected landmarks", "Model landmarks", "Face box and crop"] {
+        harness.get_by_label(label).click();
+    }
+    let mut picture_at = |opacity: f64| {
+        harness
+            .get_by_role_and_label(Role::Slider, "Reconstruction opacity")
+            .set_value_accesskit(opacity);
+        harness.run_steps(3);
+        assert!(
+            harness.state().state.error.is_none(),
+            "{:?}",
+            harness.state().state.error
+        );
+        harness.render().expect("render")
+    };
+    let plain = picture_at(0.0);
+    let full = picture_at(1.0);
+    let half = picture_at(0.5);
+    let shown = harness
+        .state()
+        .overlay
+        .frame_rect
+        .expect("the frame was drawn");
+    let frame = &session.frames[0];
+    // The tracked face box of frame 0, in screen pixels (one pixel per point here).
+    let [bx, by, bw, bh] = session.overlay(0).face_box.expect("a face in frame 0");
+    let scale = shown.width() / frame.width() as f32;
+    let to_screen = |x: f32, y: f32| {
+        [
+            (shown.min.x + x * scale).round() as u32,
+            (shown.min.y + y * scale).round() as u32,
+        ]
+    };
+    let [x0, y0] = to_screen(bx, by);
+    let [x1, y1] = to_screen(bx + bw, by + bh);
+    let face = [x0, y0, x1, y1];
+    // Outside the frame nothing changes; on the face the reconstruction is drawn...
+    let changed = plain
+        .pixels()
+        .zip(full.pixels())
+        .filter(|(a, b)| a.0.iter().zip(b.0.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
+        .count();
+    assert!(changed > 200, "the reconstruction changed {changed} pixels");
+    // Left of the frame (the list and any letterbox) nothing moves.
+    let beside_frame = [
+        0,
+        shown.min.y as u32,
+        (shown.min.x as u32).saturating_sub(2),
+        shown.max.y as u32,
+    ];
+    assert_eq!(mean_abs_diff(&plain, &full, beside_frame), 0.0);
+    // ...and it lies on the person: over the face box the render is closer to the footage
+    // where it is drawn than it would be moved 6 px in any direction, and close overall
+    // (what is left is the person's reconstruction error: albedo and lighting estimates).
+    let on_face = mean_abs_diff(&plain, &full, face);
+    for shift in [[6, 0], [-6, 0], [0, 6], [0, -6]] {
+        let moved = mean_abs_diff_shifted(&plain, &full, face, shift);
+        eprintln!("overlay moved by {shift:?}: {moved:.2} levels");
+        assert!(
+            on_face < moved,
+            "moved by {shift:?} the reconstruction fits better ({moved:.2} vs {on_face:.2} levels)"
+        );
+    }
+    assert!(
+        on_face < 20.0,
+        "the reconstruction differs from the face by {on_face:.1} levels on average"
+    );
+    // Compositing is linear in the opacity: half = (plain + full) / 2.
+    let mut midpoint = plain.clone();
+    for (m, f) in midpoint.pixels_mut().zip(full.pixels()) {
+        for c in 0..3 {
+            m[c] = (u16::from(m[c]) + u16::from(f[c])).div_ceil(2) as u8;
+        }
+    }
+    let blend_error = mean_abs_diff(&half, &midpoint, face);
+    assert!(
+        blend_error < 1.5,
+        "opacity 0.5 is off the linear blend by {blend_error:.2} levels"
+    );
+    eprintln!(
+        "overlay: {changed} pixels changed, face {on_face:.2} levels, blend error {blend_error:.2}"
+    );
+}
+
+#[test]
+fn demo_headless_writes_every_panel() {
+    let dir = std::env::temp_dir().join(format!("likeness-panels-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let written = likeness::studio_shots::write_studio_panels(scene(), demo_session(), None, &dir)
+        .unwrap_or_else(|e| panic!("panels: {e:#}"));
+    let names: Vec<String> = written
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, likeness::studio_shots::panel_file_names());
+    for required in [
+        "input",
+        "overlay",
+        "blendshapes",
+        "dynamic_albedo",
+        "attention_mask",
+        "lighting_and_motion",
+        "puppet",
+        "person_b",
+    ] {
+        assert!(
+            names.contains(&format!("panel_{required}.png")),
+            "missing panel {required}"
+        );
+    }
+    let pictures: Vec<image::RgbaImage> = written
+        .iter()
+        .map(|p| image::open(p).expect("a readable PNG").to_rgba8())
+        .collect();
+    for (name, picture) in names.iter().zip(&pictures) {
+        assert_eq!(picture.dimensions(), (1280, 800), "{name}");
+    }
+    // Every panel is its own picture, not the same frame written twice.
+    for i in 0..pictures.len() {
+        for j in i + 1..pictures.len() {
+            let changed = pictures[i]
+                .pixels()
+                .zip(pictures[j].pixels())
+                .filter(|(a, b)| a != b)
+                .count();
+            assert!(
+                changed > 2000,
+                "{} and {} differ in only {changed} pixels",
+                names[i],
+                names[j]
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn the_maps_panel_shows_each_learned_map() {
     let mut harness = session_harness();
@@ -366,4 +536,342 @@ fn the_blendshapes_panel_selects_searches_and_shows_the_correction() {
             .is_some()
     );
     assert!(harness.query_by_label(&row_label(&session, jaw)).is_none());
+}
+
+#[test]
+fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
+    use likeness::puppet_panel::{DriveTarget, frame_arkit};
+    let mut harness = session_harness();
+    let session = demo_session();
+    // The frame where the jaw is most open, so the jaw target moves visibly.
+    let jaw = face::names::arkit_index("jawOpen").unwrap();
+    let k = (0..session.frame_count())
+        .max_by(|&a, &b| frame_arkit(&session, a)[jaw].total_cmp(&frame_arkit(&session, b)[jaw]))
+        .unwrap();
+    let tracked = frame_arkit(&session, k)[jaw];
+    assert!(tracked > 0.1, "the demo opens the jaw ({tracked})");
+    harness.state_mut().state.playback.frame = k;
+    harness.get_by_label("Puppet").click();
+    harness.run_steps(3);
+    assert_eq!(harness.state().state.panel, likeness::studio::Panel::Puppet);
+    assert!(
+        harness.state().state.error.is_none(),
+        "{:?}",
+        harness.state().state.error
+    );
+    let shape = {
+        let p = harness
+            .state()
+            .puppet_panel
+            .puppet
+            .as_ref()
+            .expect("the demo puppet is loaded");
+        let target = p.targets_of(jaw).expect("pip maps jawOpen")[0].clone();
+        let name = target.rsplit_once('/').map_or(target.as_str(), |t| t.1);
+        p.shape_index(name).expect("the jaw target is drawn")
+    };
+    let before = harness.state().puppet_panel.shown_weights[shape];
+    assert!(
+        (before - tracked).abs() < 1e-4,
+        "identity mapping: puppet {before} vs tracked {tracked}"
+    );
+    let picture_before = harness.render().expect("render");
+
+    // Select the channel in the list and halve its gain.
+    harness.get_by_label_contains("jawOpen  ").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().puppet_panel.selected_channel, jaw);
+    harness
+        .get_by_role_and_label(Role::Slider, "Gain")
+        .set_value_accesskit(0.5);
+    harness.run_steps(3);
+    let after = harness.state().puppet_panel.shown_weights[shape];
+    assert!(
+        (after - 0.5 * tracked).abs() < 1e-4,
+        "gain 0.5: puppet {after}, expected {}",
+        0.5 * tracked
+    );
+    let gain = harness
+        .state()
+        .puppet_panel
+        .puppet
+        .as_ref()
+        .and_then(|p| p.entry(jaw))
+        .map(|e| e.gain);
+    assert_eq!(gain, Some(0.5), "the edit is in the mapping data");
+    let picture_after = harness.render().expect("render");
+    let changed = picture_before
+        .pixels()
+        .zip(picture_after.pixels())
+        .filter(|(a, b)| a.0.iter().zip(b.0.iter()).any(|(x, y)| x.abs_diff(*y) > 8))
+        .count();
+    assert!(changed > 200, "the puppet's mouth moved ({changed} pixels)");
+    // The golden: the input frame beside the puppet, the jawOpen editor with gain 0.5.
+    harness.snapshot("studio_puppet");
+
+    // Exports land in the chosen folder and read back.
+    let dir = std::env::temp_dir().join(format!("likeness-studio-export-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    harness.state_mut().puppet_panel.export_dir = dir.display().to_string();
+    for label in [
+        "Export glTF animation",
+        "Export Live Link CSV",
+        "Export personalized rig",
+    ] {
+        harness.get_by_label(label).click();
+        harness.run_steps(2);
+        assert!(
+            harness.state().state.error.is_none(),
+            "{label}: {:?}",
+            harness.state().state.error
+        );
+    }
+    let animation = retarget::Puppet::load(&dir.join("pip_animation.glb")).expect("animation GLB");
+    assert!(animation.morph_target_count() > 0);
+    let csv = std::fs::read_to_string(dir.join("live_link_face.csv")).expect("CSV");
+    let tracks = retarget::export::parse_live_link_csv(&csv).expect("Live Link CSV");
+    assert_eq!(tracks.frames.len(), session.tracks().frames.len());
+    let rig = retarget::Puppet::load(&dir.join("personalized_rig.glb")).expect("rig GLB");
+    assert_eq!(
+        rig.morph_target_count(),
+        face::names::NUM_ARKIT,
+        "one morph target per ARKit channel"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+
+    // Person B: another person's own blendshapes under the tracked weights.
+    harness.get_by_label("Person B").click();
+    harness.run_steps(3);
+    assert_eq!(harness.state().puppet_panel.drive, DriveTarget::Person);
+    assert!(
+        harness.state().state.error.is_none(),
+        "{:?}",
+        harness.state().state.error
+    );
+    assert_eq!(
+        harness.state().puppet_panel.shown_weights,
+        session.weights(k).0.to_vec()
+    );
+    let person_b = harness.render().expect("render");
+    let changed = picture_after
+        .pixels()
+        .zip(person_b.pixels())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(
+        changed > 5_000,
+        "person B replaced the puppet ({changed} pixels)"
+    );
+}
+
+/// A file dropped on the window, as the native integration hands it over.
+#[derive(Debug)]
+struct DroppedPath(std::path::PathBuf);
+
+impl egui::DroppedFile for DroppedPath {
+    fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        std::fs::read(&self.0).map_err(|e| e.to_string())
+    }
+}
+
+/// Steps the studio until its footage job has ended (the job runs on its own thread).
+fn run_until_job_ends(harness: &mut Harness<'static, StudioApp>) {
+    let started = std::time::Instant::now();
+    while harness.state().job().is_some() {
+        assert!(
+            started.elapsed().as_secs() < 300,
+            "the footage job did not end"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        harness.step();
+    }
+    harness.run_steps(2);
+}
+
+#[test]
+fn dropped_footage_is_tracked_off_the_ui_thread_and_cancel_keeps_the_session() {
+    let mut harness = session_harness();
+    let demo = demo_session();
+    let dir = std::env::temp_dir().join(format!("likeness-footage-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let autosave = dir.join("autosave").join("autosave.likeness");
+    harness.state_mut().autosave_path = autosave.clone();
+    let dir = dir.join("clip");
+    // Six frames of the demo clip as a folder of images, plus a file that is not footage.
+    std::fs::create_dir_all(&dir).unwrap();
+    for k in 0..6 {
+        demo.frames[k * 2]
+            .save(dir.join(format!("frame_{k:02}.png")))
+            .unwrap();
+    }
+    harness
+        .input_mut()
+        .dropped_files
+        .push(Arc::new(DroppedPath(dir.clone())));
+    harness.step();
+    assert!(
+        harness.state().job().is_some(),
+        "a dropped folder starts a job"
+    );
+    // The UI keeps running while the job works: the progress bar is on screen.
+    harness.step();
+    assert!(harness.query_by_label("Cancel").is_some());
+    run_until_job_ends(&mut harness);
+    assert!(
+        harness.state().state.error.is_none(),
+        "{:?}",
+        harness.state().state.error
+    );
+    let session = harness.state().session().expect("a session").clone();
+    assert!(
+        !Arc::ptr_eq(&session, &demo),
+        "the footage replaced the demo"
+    );
+    assert_eq!(session.frame_count(), 6);
+    assert_eq!(harness.state().state.panel, likeness::studio::Panel::Input);
+    let faces = session.records.iter().filter(|r| r.face).count();
+    assert_eq!(faces, 6, "the face is found in every frame");
+    // The same frames tracked as part of the demo clip: the weights agree.
+    let mut diff = 0.0f32;
+    for k in 0..6 {
+        let (a, b) = (session.weights(k).0, demo.weights(k * 2).0);
+        diff += a.iter().zip(&b).map(|(x, y)| (x - y).abs()).sum::<f32>() / a.len() as f32;
+    }
+    diff /= 6.0;
+    eprintln!("footage vs demo: mean weight difference {diff:.4}");
+    assert!(diff < 0.08, "mean weight difference {diff}");
+    assert!(
+        harness
+            .state()
+            .state
+            .status
+            .as_deref()
+            .is_some_and(|s| s.contains("6 frames")),
+        "{:?}",
+        harness.state().state.status
+    );
+
+    // The processed session was autosaved and can be recovered.
+    let started = std::time::Instant::now();
+    while !autosave.is_file() && started.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        harness.step();
+    }
+    let recovered = likeness::studio_session::StudioSession::load(&scene().model, &autosave)
+        .expect("the autosave loads");
+    assert_eq!(recovered.frame_count(), 6);
+    assert_eq!(recovered.records, session.records);
+
+    // Cancel: the job stops and the session stays.
+    harness
+        .input_mut()
+        .dropped_files
+        .push(Arc::new(DroppedPath(dir.clone())));
+    harness.run_steps(2);
+    harness.get_by_label("Cancel").click();
+    run_until_job_ends(&mut harness);
+    let kept = harness.state().session().expect("a session").clone();
+    assert!(Arc::ptr_eq(&kept, &session), "cancel keeps the session");
+    assert!(
+        harness
+            .state()
+            .state
+            .status
+            .as_deref()
+            .is_some_and(|s| s.ends_with("cancelled")),
+        "{:?}",
+        harness.state().state.status
+    );
+    assert!(harness.state().state.error.is_none());
+
+    // A file that is not footage: an error in the UI, the session stays.
+    let junk = dir.join("notes.txt");
+    std::fs::write(&junk, "not a video").unwrap();
+    harness
+        .input_mut()
+        .dropped_files
+        .push(Arc::new(DroppedPath(junk)));
+    harness.step();
+    run_until_job_ends(&mut harness);
+    assert!(
+        harness.state().state.error.is_some(),
+        "an unreadable file is reported"
+    );
+    assert!(Arc::ptr_eq(
+        harness.state().session().expect("a session"),
+        &session
+    ));
+    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
+
+#[test]
+fn a_saved_session_opens_again_with_its_footage_model_and_tracking() {
+    let mut harness = session_harness();
+    let demo = demo_session();
+    let dir = std::env::temp_dir().join(format!("likeness-session-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    // Saving adds the extension and leaves no temporary file.
+    harness.state_mut().save_session(&dir.join("person"));
+    let path = dir.join("person.likeness");
+    assert!(path.is_file(), "{:?}", harness.state().state.error);
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+
+    harness.state_mut().state.playback.frame = 5;
+    harness.state_mut().open_session(&path);
+    assert_eq!(
+        harness.state().state.playback.frame,
+        0,
+        "opens on its first frame"
+    );
+    harness.run_steps(2);
+    assert!(
+        harness.state().state.error.is_none(),
+        "{:?}",
+        harness.state().state.error
+    );
+    let opened = harness.state().session().expect("a session").clone();
+    assert!(!Arc::ptr_eq(&opened, &demo));
+    assert_eq!(opened.frames, demo.frames, "the footage is in the file");
+    assert_eq!(opened.records, demo.records);
+    assert_eq!(opened.observations, demo.observations);
+    assert_eq!(opened.corrections, demo.corrections);
+    assert_eq!(opened.selected_frames, demo.selected_frames);
+    assert_eq!(opened.intrinsics, demo.intrinsics);
+    assert_eq!(opened.correction_mm, demo.correction_mm);
+    assert_eq!(
+        harness.state().settings.recent.first(),
+        Some(&likeness::settings::RecentFile::Session(path.clone()))
+    );
+    // The overlay of the reopened session is the one of the original.
+    assert_eq!(opened.overlay(3).detected, demo.overlay(3).detected);
+
+    // A damaged file: an error in the UI, the session stays, nothing panics.
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.join("cut.likeness");
+    std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap();
+    harness.state_mut().open_session(&cut);
+    harness.run_steps(2);
+    assert!(harness.state().state.error.is_some());
+    assert!(Arc::ptr_eq(harness.state().session().unwrap(), &opened));
+
+    // Person B from a session file drives their own model in the puppet panel.
+    harness.state_mut().load_person_b(&path);
+    harness.run_steps(3);
+    let person = harness
+        .state()
+        .puppet_panel
+        .person
+        .clone()
+        .expect("person B");
+    assert_eq!(person.corrections, demo.corrections);
+    assert_eq!(
+        harness.state().puppet_panel.drive,
+        likeness::puppet_panel::DriveTarget::Person
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -10,6 +10,7 @@ use likeness::headless::{
 use likeness::scene::{Orbit, Scene, StudioView, parse_weights};
 use likeness::studio::StudioApp;
 use likeness::studio_session::StudioSession;
+use likeness::studio_shots::write_studio_panels;
 
 /// Likeness: a personalized face model you can see, measure and export.
 #[derive(Parser)]
@@ -104,6 +105,15 @@ enum Command {
         frames: usize,
         #[command(flatten)]
         tracking: TrackingArgs,
+    },
+    /// Time the studio playing the demo clip on its live panels (input with overlay, face,
+    /// puppet, person B) at a window size, without a display; prints a table.
+    BenchStudio {
+        #[arg(long, default_value = "1280x720")]
+        size: String,
+        /// Frames timed per panel.
+        #[arg(long, default_value_t = 120)]
+        frames: usize,
     },
     /// Render one view of the face to a PNG file without a window.
     Screenshot {
@@ -306,15 +316,36 @@ fn main() -> Result<()> {
                 "No display found: writing the studio's demo views to {} instead.",
                 out.display()
             );
-            report_written(&write_all_demo_views(&load_scene()?, &out)?);
+            report_written(&write_all_demo_views(load_scene()?, &out)?);
         }
         Command::Studio { .. } => run_studio(load_scene()?)?,
         Command::Demo { out, .. } => {
-            report_written(&write_all_demo_views(&load_scene()?, &out)?);
+            report_written(&write_all_demo_views(load_scene()?, &out)?);
         }
         Command::ExportFixture { out } => {
             let path = likeness::fixture::export_fixture(&load_scene()?.model, &out)?;
             println!("wrote {}", path.display());
+        }
+        Command::BenchStudio { size, frames } => {
+            let (w, h) = parse_size(&size)?;
+            let scene = load_scene()?;
+            let session = demo_session(&scene)?;
+            let rows =
+                likeness::studio_shots::bench_studio(Arc::new(scene), session, [w, h], frames)?;
+            println!("studio at {w}x{h}, demo clip playing, {frames} frames per panel");
+            println!(
+                "{:<40} {:>9} {:>9} {:>7}",
+                "panel", "mean ms", "p95 ms", "fps"
+            );
+            for r in &rows {
+                println!(
+                    "{:<40} {:>9.2} {:>9.2} {:>7.1}",
+                    r.panel,
+                    r.mean_ms,
+                    r.p95_ms,
+                    r.fps()
+                );
+            }
         }
         Command::Screenshot {
             out,
@@ -365,14 +396,17 @@ fn demo_session(scene: &Scene) -> Result<Arc<StudioSession>> {
     Ok(Arc::new(StudioSession::from_demo(&scene.model, demo)))
 }
 
-/// What `demo --headless` writes: the 3D views and the demo session's input frames.
-/// The 3D views need only the template; the session views also need the networks and
-/// the OpenSeeFace models, so without them the 3D views are still written and the reason
-/// is printed.
-fn write_all_demo_views(scene: &Scene, out: &std::path::Path) -> Result<Vec<PathBuf>> {
-    let mut written = write_demo_views(scene, out, (800, 800))?;
-    match demo_session(scene) {
-        Ok(session) => written.extend(write_session_views(session.as_ref(), out)?),
+/// What `demo --headless` writes: the 3D views, then every panel of the studio on the demo
+/// session (`panel_*.png`) and the session's input frames. The 3D views need only the
+/// template; the session also needs the networks and the OpenSeeFace models, so without
+/// them the 3D views are still written and the reason is printed.
+fn write_all_demo_views(scene: Scene, out: &std::path::Path) -> Result<Vec<PathBuf>> {
+    let mut written = write_demo_views(&scene, out, (800, 800))?;
+    match demo_session(&scene) {
+        Ok(session) => {
+            written.extend(write_session_views(session.as_ref(), out)?);
+            written.extend(write_studio_panels(Arc::new(scene), session, None, out)?);
+        }
         Err(e) => {
             eprintln!("The demo session could not be built, so its panels are missing: {e:#}")
         }

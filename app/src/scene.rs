@@ -217,7 +217,15 @@ const FIELD_OF_VIEW_DEG: f32 = 24.0;
 
 impl Orbit {
     pub fn pose(&self) -> HeadPose {
-        let pose = HeadPose::from_degrees(self.yaw_deg, self.pitch_deg, 0.0, Vec3::ZERO);
+        self.pose_with_head([0.0; 3])
+    }
+
+    /// The orbit's pose after the head itself turned by `head_rotation_deg` ([yaw, pitch,
+    /// roll], the tracker's convention): a tracked performance replayed in the orbit view.
+    pub fn pose_with_head(&self, head_rotation_deg: [f32; 3]) -> HeadPose {
+        let [yaw, pitch, roll] = head_rotation_deg;
+        let pose =
+            HeadPose::from_degrees(self.yaw_deg + yaw, self.pitch_deg + pitch, roll, Vec3::ZERO);
         // Rotate about the pivot, then move it in front of the camera.
         let translation = Vec3::new(0.0, 0.0, -self.distance_cm) - pose.rotation() * ORBIT_PIVOT;
         HeadPose {
@@ -233,9 +241,15 @@ impl Orbit {
     }
 
     pub fn camera(&self, width: u32, height: u32) -> Camera {
+        self.camera_with_head([0.0; 3], width, height)
+    }
+
+    /// [`Orbit::camera`] for a head turned by `head_rotation_deg` (see
+    /// [`Orbit::pose_with_head`]).
+    pub fn camera_with_head(&self, head_rotation_deg: [f32; 3], width: u32, height: u32) -> Camera {
         let k = self.intrinsics(width, height);
         Camera {
-            view_from_model: self.pose().view_from_model(),
+            view_from_model: self.pose_with_head(head_rotation_deg).view_from_model(),
             clip_from_view: k.clip_from_view(1.0, 1000.0),
         }
     }

@@ -1,17 +1,22 @@
 //! The studio window: a 3D view of the face with an orbit camera, the 53 blendshape sliders
 //! (searchable), a view-mode switch and the frame time.
 
-use std::sync::Arc;
+use std::path::PathBuf;
+use std::sync::{Arc, mpsc};
 use std::time::Instant;
 
 use face::{ICT_NAMES, NUM_BLENDSHAPES};
 use renderer::FaceRenderer;
 
 use crate::blendshape_panel::BlendshapePanel;
+use crate::footage::{FootageJob, FootageRequest};
 use crate::gpu_view::{
     VIEW_FORMAT, ViewTarget, available_pixels, interactive_options, orbit_input,
 };
+use crate::overlay_view::OverlayView;
+use crate::puppet_panel::{DriveTarget, PersonTarget};
 use crate::scene::{Orbit, Scene, StudioView, demo_weights, frame_params};
+use crate::settings::{RecentFile, SETTINGS_KEY, Settings, autosave_path, with_session_extension};
 use crate::studio_panels::{PlaybackState, fit_rect, paint_overlay, timeline_ui};
 use crate::studio_session::StudioSession;
 
@@ -29,6 +34,8 @@ pub enum Panel {
     Maps,
     /// The frame's lighting on a sphere and the weight curves over time.
     Motion,
+    /// The performance retargeted onto a puppet or another person, with the mapping editor.
+    Puppet,
 }
 
 /// The studio's state, separate from GPU resources so tests can inspect it.
@@ -50,6 +57,8 @@ pub struct StudioState {
     /// to run).
     pub show_timings: bool,
     pub error: Option<String>,
+    /// The last finished job's message (kept until dismissed).
+    pub status: Option<String>,
     pub panel: Panel,
     pub playback: PlaybackState,
 }
@@ -68,6 +77,7 @@ impl Default for StudioState {
             frame_interval_ms: 0.0,
             show_timings: true,
             error: None,
+            status: None,
             panel: Panel::Face,
             playback: PlaybackState::default(),
         }
@@ -93,6 +103,16 @@ pub struct StudioApp {
     pub uv_panel: crate::uv_panel::UvPanel,
     pub motion_panel: crate::motion_panel::MotionPanel,
     pub blendshape_panel: BlendshapePanel,
+    pub puppet_panel: crate::puppet_panel::PuppetPanel,
+    pub overlay: OverlayView,
+    pub settings: Settings,
+    /// Where the session was last opened from or saved to.
+    pub session_path: Option<PathBuf>,
+    /// Where a processed session is autosaved ([`autosave_path`] unless a test moves it).
+    pub autosave_path: PathBuf,
+    job: Option<FootageJob>,
+    /// The autosave of the last processed session, written on its own thread.
+    autosave: Option<mpsc::Receiver<Result<PathBuf, String>>>,
 }
 
 impl StudioApp {
@@ -106,7 +126,20 @@ impl StudioApp {
             uv_panel: crate::uv_panel::UvPanel::default(),
             motion_panel: crate::motion_panel::MotionPanel::default(),
             blendshape_panel: BlendshapePanel::default(),
+            puppet_panel: crate::puppet_panel::PuppetPanel::default(),
+            overlay: OverlayView::default(),
+            settings: Settings::default(),
+            session_path: None,
+            autosave_path: autosave_path(),
+            job: None,
+            autosave: None,
         };
+        if let Some(storage) = cc.storage {
+            let settings = eframe::get_value::<Settings>(storage, SETTINGS_KEY)
+                .unwrap_or_default()
+                .sanitized();
+            app.apply_settings(settings);
+        }
         match cc.wgpu_render_state.as_ref() {
             Some(rs) => match FaceRenderer::with_options(
                 &rs.device,
@@ -135,17 +168,356 @@ impl StudioApp {
     /// Shows a tracked session: the input panel, the timeline, and the face replaying the
     /// tracked weights.
     pub fn with_session(mut self, session: Arc<StudioSession>) -> Self {
+        self.set_session(session);
+        self
+    }
+
+    /// Restores what the studio remembered from the last run.
+    pub fn apply_settings(&mut self, settings: Settings) {
+        self.overlay.opacity = settings.overlay_opacity;
+        let p = &mut self.state.playback;
+        p.show_detected = settings.show_detected;
+        p.show_model = settings.show_model;
+        p.show_boxes = settings.show_boxes;
+        self.puppet_panel.export_dir = settings.export_dir.clone();
+        if let Some(path) = settings.puppet.as_ref().filter(|p| p.is_file())
+            && let Err(e) = self.puppet_panel.load(path)
+        {
+            tracing::warn!("the last puppet could not be loaded again: {e:#}");
+        }
+        self.settings = settings;
+    }
+
+    /// The settings as they are now.
+    pub fn current_settings(&self) -> Settings {
+        let p = &self.state.playback;
+        Settings {
+            overlay_opacity: self.overlay.opacity,
+            show_detected: p.show_detected,
+            show_model: p.show_model,
+            show_boxes: p.show_boxes,
+            export_dir: self.puppet_panel.export_dir.clone(),
+            puppet: self
+                .puppet_panel
+                .puppet
+                .as_ref()
+                .map(|p| p.path.clone())
+                .filter(|p| p.as_path() != std::path::Path::new(crate::puppet_panel::DEMO_PUPPET)),
+            ..self.settings.clone()
+        }
+    }
+
+    /// Opens a session file in place of the current session.
+    pub fn open_session(&mut self, path: &std::path::Path) {
+        let recent = RecentFile::Session(path.to_owned());
+        match StudioSession::load(&self.scene.model, path) {
+            Ok(session) => {
+                self.state.status = Some(format!(
+                    "opened {} ({} frames)",
+                    path.display(),
+                    session.frame_count()
+                ));
+                self.set_session(Arc::new(session));
+                self.session_path = Some(path.to_owned());
+                self.settings.remember(recent);
+            }
+            Err(e) => {
+                self.settings.forget(&recent);
+                self.state.error = Some(e);
+            }
+        }
+    }
+
+    /// Saves the session (atomically) to `path`.
+    pub fn save_session(&mut self, path: &std::path::Path) {
+        let Some(session) = self.session.clone() else {
+            self.state.error = Some("there is no session to save".into());
+            return;
+        };
+        let path = with_session_extension(path);
+        match session.save(&path) {
+            Ok(()) => {
+                self.state.status = Some(format!("saved {}", path.display()));
+                self.settings.remember(RecentFile::Session(path.clone()));
+                self.session_path = Some(path);
+            }
+            Err(e) => self.state.error = Some(e),
+        }
+    }
+
+    /// Person B for the puppet panel from a session file: their own blendshapes and
+    /// dynamic albedo, driven by this session's tracking.
+    pub fn load_person_b(&mut self, path: &std::path::Path) {
+        match StudioSession::load(&self.scene.model, path) {
+            Ok(person) => {
+                let mut target = PersonTarget::from_session(&person);
+                target.name = format!("person B: {}", path.display());
+                self.puppet_panel.person = Some(Arc::new(target));
+                self.puppet_panel.drive = DriveTarget::Person;
+                if self.session.is_some() {
+                    self.state.panel = Panel::Puppet;
+                }
+            }
+            Err(e) => self.state.error = Some(e),
+        }
+    }
+
+    /// Starts writing the autosave of `session` on its own thread.
+    fn start_autosave(&mut self, session: Arc<StudioSession>) {
+        let path = self.autosave_path.clone();
+        let (sender, receiver) = mpsc::channel();
+        let spawned = std::thread::Builder::new()
+            .name("likeness autosave".into())
+            .spawn(move || {
+                let result = match path.parent().map(std::fs::create_dir_all) {
+                    Some(Err(e)) => Err(format!("autosave: cannot create {}: {e}", path.display())),
+                    _ => session.save(&path).map(|()| path),
+                };
+                let _ = sender.send(result);
+            });
+        match spawned {
+            Ok(_) => self.autosave = Some(receiver),
+            Err(e) => self.state.error = Some(format!("autosave: {e}")),
+        }
+    }
+
+    fn poll_autosave(&mut self) {
+        let Some(receiver) = &self.autosave else {
+            return;
+        };
+        match receiver.try_recv() {
+            Ok(Ok(path)) => {
+                tracing::info!("autosaved {}", path.display());
+                self.autosave = None;
+            }
+            Ok(Err(e)) => {
+                self.state.error = Some(e);
+                self.autosave = None;
+            }
+            Err(mpsc::TryRecvError::Empty) => {}
+            Err(mpsc::TryRecvError::Disconnected) => self.autosave = None,
+        }
+    }
+
+    /// Replaces the session (the puppet, its mapping and person B stay).
+    pub fn set_session(&mut self, session: Arc<StudioSession>) {
         self.session = Some(session);
         self.frame_texture = None;
         self.uv_panel.clear();
         self.blendshape_panel.clear();
+        self.overlay.clear();
         self.state.playback = PlaybackState {
             playing: true,
             ..PlaybackState::default()
         };
         self.state.playing_demo = false;
         self.state.panel = Panel::Input;
-        self
+    }
+
+    /// Starts tracking and personalizing footage (an image, a folder, a video file or
+    /// `webcam[:DEVICE]`) on a worker thread; the session replaces the current one when
+    /// it is done.
+    pub fn open_footage(&mut self, ctx: &egui::Context, input: &str) {
+        if let Some(job) = &self.job {
+            self.state.error = Some(format!(
+                "still processing {}: cancel it before opening {input}",
+                job.input
+            ));
+            return;
+        }
+        let ctx = ctx.clone();
+        match FootageJob::start(self.scene.clone(), FootageRequest::new(input), move || {
+            ctx.request_repaint()
+        }) {
+            Ok(job) => {
+                self.job = Some(job);
+                self.state.status = None;
+                self.settings
+                    .remember(RecentFile::Footage(input.to_owned()));
+            }
+            Err(e) => self.state.error = Some(format!("{e:#}")),
+        }
+    }
+
+    /// The running footage job, if any.
+    pub fn job(&self) -> Option<&FootageJob> {
+        self.job.as_ref()
+    }
+
+    /// Takes a finished job's session or error.
+    fn poll_job(&mut self) {
+        let Some(result) = self.job.as_mut().and_then(FootageJob::poll) else {
+            return;
+        };
+        let input = self.job.take().map(|j| j.input.clone()).unwrap_or_default();
+        match result {
+            Ok(session) => {
+                self.state.status = Some(format!(
+                    "{input}: {} frames tracked and personalized (File > Save session keeps it)",
+                    session.frame_count()
+                ));
+                let session: Arc<StudioSession> = Arc::from(session);
+                self.set_session(session.clone());
+                self.session_path = None;
+                self.start_autosave(session);
+            }
+            Err(e) if e.ends_with("cancelled") => {
+                self.state.status = Some(format!("{input}: cancelled"));
+            }
+            Err(e) => self.state.error = Some(e),
+        }
+    }
+
+    /// The progress of the footage job with its cancel button.
+    fn job_ui(&mut self, ui: &mut egui::Ui) {
+        let Some(job) = &self.job else {
+            return;
+        };
+        let p = &job.progress;
+        let (fraction, text) = match p.total {
+            Some(total) if total > 0 => (
+                p.done as f32 / total as f32,
+                format!("{}: {} / {total} frames", p.stage, p.done),
+            ),
+            _ if p.done > 0 => (0.0, format!("{}: {} frames", p.stage, p.done)),
+            _ => (0.0, p.stage.to_string()),
+        };
+        let live = job.input.starts_with("webcam") || job.input.starts_with("ffmpeg:");
+        let cancel = if live { "Stop recording" } else { "Cancel" };
+        let cancelling = job.cancelling();
+        ui.horizontal(|ui| {
+            ui.label(&job.input);
+            ui.add(
+                egui::ProgressBar::new(fraction.clamp(0.0, 1.0))
+                    .desired_width(360.0)
+                    .text(text)
+                    .animate(p.total.is_none()),
+            );
+            if ui
+                .add_enabled(!cancelling, egui::Button::new(cancel))
+                .clicked()
+            {
+                job.cancel();
+            }
+        });
+    }
+
+    /// The File menu: footage in.
+    fn file_menu_ui(&mut self, ui: &mut egui::Ui) {
+        ui.menu_button("File", |ui| {
+            if ui.button("Open image or video...").clicked() {
+                ui.close();
+                if let Some(path) = rfd::FileDialog::new()
+                    .add_filter(
+                        "Images and videos",
+                        &[
+                            "png", "jpg", "jpeg", "bmp", "webp", "tif", "tiff", "mp4", "mov",
+                            "mkv", "avi", "webm", "m4v",
+                        ],
+                    )
+                    .add_filter("All files", &["*"])
+                    .pick_file()
+                {
+                    self.open_footage(ui.ctx(), &path.display().to_string());
+                }
+            }
+            if ui.button("Open folder of images...").clicked() {
+                ui.close();
+                if let Some(path) = rfd::FileDialog::new().pick_folder() {
+                    self.open_footage(ui.ctx(), &path.display().to_string());
+                }
+            }
+            if ui
+                .button("Record from webcam")
+                .on_hover_text("Records until Stop recording (at most 600 frames)")
+                .clicked()
+            {
+                ui.close();
+                self.open_footage(ui.ctx(), "webcam");
+            }
+            ui.separator();
+            if ui.button("Open session...").clicked() {
+                ui.close();
+                self.open_session_dialog();
+            }
+            let has_session = self.session.is_some();
+            if ui
+                .add_enabled(has_session, egui::Button::new("Save session"))
+                .on_hover_text("Ctrl+S")
+                .clicked()
+            {
+                ui.close();
+                self.save_session_shortcut();
+            }
+            if ui
+                .add_enabled(has_session, egui::Button::new("Save session as..."))
+                .clicked()
+            {
+                ui.close();
+                self.save_session_dialog();
+            }
+            ui.menu_button("Recent", |ui| {
+                if self.settings.recent.is_empty() {
+                    ui.label("Nothing opened yet");
+                }
+                for file in self.settings.recent.clone() {
+                    if ui.button(file.label()).clicked() {
+                        ui.close();
+                        match file {
+                            RecentFile::Session(path) => self.open_session(&path),
+                            RecentFile::Footage(input) => self.open_footage(ui.ctx(), &input),
+                        }
+                    }
+                }
+            });
+            let autosave = self.autosave_path.clone();
+            if ui
+                .add_enabled(
+                    autosave.is_file(),
+                    egui::Button::new("Recover the last processed session"),
+                )
+                .on_hover_text(autosave.display().to_string())
+                .clicked()
+            {
+                ui.close();
+                self.open_session(&autosave);
+            }
+            ui.separator();
+            if ui
+                .button("Load person B from a session...")
+                .on_hover_text("Drive another person's own blendshapes and dynamic albedo")
+                .clicked()
+            {
+                ui.close();
+                if let Some(path) = session_dialog().pick_file() {
+                    self.load_person_b(&path);
+                }
+            }
+        });
+    }
+
+    fn open_session_dialog(&mut self) {
+        if let Some(path) = session_dialog().pick_file() {
+            self.open_session(&path);
+        }
+    }
+
+    fn save_session_dialog(&mut self) {
+        if let Some(path) = session_dialog()
+            .set_file_name("person.likeness")
+            .save_file()
+        {
+            self.save_session(&path);
+        }
+    }
+
+    /// Ctrl+S: where the session came from, else ask.
+    fn save_session_shortcut(&mut self) {
+        match self.session_path.clone() {
+            // The autosave is the studio's own copy; saving goes to a file of the user's.
+            Some(path) if path != self.autosave_path => self.save_session(&path),
+            _ => self.save_session_dialog(),
+        }
     }
 
     pub fn session(&self) -> Option<&Arc<StudioSession>> {
@@ -153,7 +525,7 @@ impl StudioApp {
     }
 
     /// The input frame with its overlay, fitted to the panel.
-    fn input_ui(&mut self, ui: &mut egui::Ui) {
+    fn input_ui(&mut self, ui: &mut egui::Ui, eframe_frame: &eframe::Frame) {
         let Some(session) = self.session.clone() else {
             ui.centered_and_justified(|ui| ui.label("No footage: open a session or run the demo"));
             return;
@@ -163,6 +535,14 @@ impl StudioApp {
             ui.checkbox(&mut p.show_detected, "Detected landmarks");
             ui.checkbox(&mut p.show_model, "Model landmarks");
             ui.checkbox(&mut p.show_boxes, "Face box and crop");
+            ui.separator();
+            ui.add(
+                egui::Slider::new(&mut self.overlay.opacity, 0.0..=1.0)
+                    .text("Reconstruction opacity"),
+            )
+            .on_hover_text(
+                "The personalized face under the tracked pose, weights and lighting, over the frame",
+            );
         });
         let k = self
             .state
@@ -174,34 +554,36 @@ impl StudioApp {
             return;
         };
         let size = [frame.width(), frame.height()];
-        if self
-            .frame_texture
-            .as_ref()
-            .is_none_or(|(shown, _)| *shown != k)
-        {
-            let image =
-                egui::ColorImage::from_rgb([size[0] as usize, size[1] as usize], frame.as_raw());
-            match self.frame_texture.as_mut() {
-                Some((shown, texture)) => {
-                    texture.set(image, egui::TextureOptions::LINEAR);
-                    *shown = k;
-                }
-                None => {
-                    let texture =
-                        ui.ctx()
-                            .load_texture("input frame", image, egui::TextureOptions::LINEAR);
-                    self.frame_texture = Some((k, texture));
-                }
-            }
-        }
-        let Some((_, texture)) = self.frame_texture.as_ref() else {
+        let Some(id) = self.frame_texture_id(ui.ctx(), &session, k) else {
             return;
         };
         let rect = fit_rect(ui.available_rect_before_wrap(), size);
         let response = ui.allocate_rect(ui.available_rect_before_wrap(), egui::Sense::hover());
         let painter = ui.painter_at(response.rect);
+        // The composite is rendered at the size it is shown, so it stays sharp.
+        let pixels = (rect.size() * ui.pixels_per_point()).round();
+        let composite = match eframe_frame.wgpu_render_state() {
+            Some(rs) if pixels.x >= 1.0 && pixels.y >= 1.0 => self.overlay.render(
+                rs,
+                &self.scene,
+                &session,
+                k,
+                [pixels.x as u32, pixels.y as u32],
+            ),
+            _ => Ok(None),
+        };
+        self.overlay.frame_rect = Some(rect);
+        let id = match composite {
+            Ok(Some(composite)) => composite,
+            Ok(None) => id,
+            Err(e) => {
+                self.state.error = Some(e);
+                self.overlay.opacity = 0.0;
+                id
+            }
+        };
         painter.image(
-            texture.id(),
+            id,
             rect,
             egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
             egui::Color32::WHITE,
@@ -213,6 +595,89 @@ impl StudioApp {
             &session.overlay(k),
             &self.state.playback,
         );
+    }
+
+    /// Frame `k` of the session as an egui texture (uploaded when the frame changes).
+    fn frame_texture_id(
+        &mut self,
+        ctx: &egui::Context,
+        session: &StudioSession,
+        k: usize,
+    ) -> Option<egui::TextureId> {
+        let frame = session.frames.get(k)?;
+        if self
+            .frame_texture
+            .as_ref()
+            .is_none_or(|(shown, _)| *shown != k)
+        {
+            let size = [frame.width() as usize, frame.height() as usize];
+            let image = egui::ColorImage::from_rgb(size, frame.as_raw());
+            match self.frame_texture.as_mut() {
+                Some((shown, texture)) => {
+                    texture.set(image, egui::TextureOptions::LINEAR);
+                    *shown = k;
+                }
+                None => {
+                    let texture =
+                        ctx.load_texture("input frame", image, egui::TextureOptions::LINEAR);
+                    self.frame_texture = Some((k, texture));
+                }
+            }
+        }
+        self.frame_texture.as_ref().map(|(_, t)| t.id())
+    }
+
+    /// The performance driving a puppet or person B, beside the input.
+    fn puppet_ui(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
+        let Some(session) = self.session.clone() else {
+            return;
+        };
+        let k = self
+            .state
+            .playback
+            .frame
+            .min(session.frame_count().saturating_sub(1));
+        let input = self
+            .frame_texture_id(ui.ctx(), &session, k)
+            .zip(session.frames.get(k).map(|f| [f.width(), f.height()]));
+        let started = Instant::now();
+        if let Some(error) = self.puppet_panel.ui(
+            ui,
+            frame.wgpu_render_state(),
+            &self.scene,
+            &session,
+            k,
+            input,
+        ) {
+            self.state.error = Some(error);
+        }
+        self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
+    }
+
+    /// Puppet files dropped on the window are loaded into the puppet panel; images, videos
+    /// and folders are opened as footage.
+    fn dropped_files(&mut self, ctx: &egui::Context) {
+        let dropped = ctx.input(|i| i.raw.dropped_files.clone());
+        for file in dropped {
+            let path = file.path().to_owned();
+            let ext = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_ascii_lowercase);
+            match ext.as_deref() {
+                Some("glb" | "gltf" | "vrm") => match self.puppet_panel.load(&path) {
+                    Ok(()) => {
+                        if self.session.is_some() {
+                            self.state.panel = Panel::Puppet;
+                        }
+                    }
+                    Err(e) => self.state.error = Some(format!("{e:#}")),
+                },
+                // Anything else is footage: an image, a video or a folder; what cannot be
+                // read is reported by the job.
+                _ => self.open_footage(ctx, &path.display().to_string()),
+            }
+        }
     }
 
     /// The person's learned maps in UV space, for the selected blendshape and frame.
@@ -241,7 +706,22 @@ impl StudioApp {
         if ctx.egui_wants_keyboard_input() {
             return; // typing in the search box
         }
+        let (save, open) = ctx.input(|i| {
+            (
+                i.modifiers.command && i.key_pressed(egui::Key::S),
+                i.modifiers.command && i.key_pressed(egui::Key::O),
+            )
+        });
+        if save && self.session.is_some() {
+            self.save_session_shortcut();
+        }
+        if open {
+            self.open_session_dialog();
+        }
         ctx.input(|i| {
+            if i.modifiers.command {
+                return;
+            }
             if i.key_pressed(egui::Key::Space) {
                 self.state.playback.playing = !self.state.playback.playing;
             }
@@ -257,7 +737,8 @@ impl StudioApp {
                     Panel::Face => Panel::Blendshapes,
                     Panel::Blendshapes => Panel::Maps,
                     Panel::Maps => Panel::Motion,
-                    Panel::Motion => Panel::Input,
+                    Panel::Motion => Panel::Puppet,
+                    Panel::Puppet => Panel::Input,
                 };
             }
         });
@@ -311,6 +792,8 @@ impl StudioApp {
 
     fn toolbar_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
+            self.file_menu_ui(ui);
+            ui.separator();
             if self.session.is_some() {
                 ui.label("Panel");
                 for (panel, label) in [
@@ -319,6 +802,7 @@ impl StudioApp {
                     (Panel::Blendshapes, "Blendshapes"),
                     (Panel::Maps, "Maps"),
                     (Panel::Motion, "Lighting and motion"),
+                    (Panel::Puppet, "Puppet"),
                 ] {
                     if ui
                         .selectable_label(self.state.panel == panel, label)
@@ -452,10 +936,22 @@ impl StudioApp {
     }
 }
 
+/// The file dialog for session files.
+fn session_dialog() -> rfd::FileDialog {
+    rfd::FileDialog::new().add_filter("Likeness session", &["likeness"])
+}
+
 impl eframe::App for StudioApp {
+    fn save(&mut self, storage: &mut dyn eframe::Storage) {
+        eframe::set_value(storage, SETTINGS_KEY, &self.current_settings());
+    }
+
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         self.state.frame_interval_ms = ui.input(|i| i.unstable_dt) * 1000.0;
+        self.poll_job();
+        self.poll_autosave();
         self.shortcuts(ui.ctx());
+        self.dropped_files(ui.ctx());
         if let Some(session) = self.session.clone() {
             let dt = f64::from(ui.input(|i| i.stable_dt));
             self.state
@@ -482,8 +978,25 @@ impl eframe::App for StudioApp {
                     self.blendshape_panel
                         .list_ui(ui, &session, &mut self.state.selected);
                 }
+                Some(session) if self.state.panel == Panel::Puppet => {
+                    self.puppet_panel
+                        .channels_ui(ui, &session, self.state.playback.frame);
+                }
                 _ => self.blendshape_list_ui(ui),
             });
+        if self.job.is_some() {
+            egui::Panel::bottom("footage job").show(ui, |ui| self.job_ui(ui));
+        }
+        if let Some(status) = self.state.status.clone() {
+            egui::Panel::bottom("status").show(ui, |ui| {
+                ui.horizontal(|ui| {
+                    ui.label(&status);
+                    if ui.button("OK").clicked() {
+                        self.state.status = None;
+                    }
+                });
+            });
+        }
         if let Some(error) = self.state.error.clone() {
             egui::Panel::bottom("errors").show(ui, |ui| {
                 ui.horizontal(|ui| {
@@ -500,12 +1013,15 @@ impl eframe::App for StudioApp {
         }
         match self.state.panel {
             Panel::Input if self.session.is_some() => {
-                egui::CentralPanel::default().show(ui, |ui| self.input_ui(ui));
+                egui::CentralPanel::default().show(ui, |ui| self.input_ui(ui, frame));
             }
             Panel::Blendshapes if self.session.is_some() => {
                 let dt = f64::from(ui.input(|i| i.stable_dt));
                 self.blendshape_panel.advance(dt);
                 egui::CentralPanel::default().show(ui, |ui| self.blendshapes_ui(ui, frame));
+            }
+            Panel::Puppet if self.session.is_some() => {
+                egui::CentralPanel::default().show(ui, |ui| self.puppet_ui(ui, frame));
             }
             Panel::Maps if self.session.is_some() => {
                 egui::CentralPanel::default().show(ui, |ui| self.maps_ui(ui));

@@ -10,13 +10,16 @@
 use std::sync::Arc;
 
 use face::camera::Intrinsics;
+use face::names::ict_to_arkit;
 use face::{
     BlendshapeWeights, FaceModel, NUM_BLENDSHAPES, PersonalCorrections, PersonalizedBlendshapes,
 };
 use glam::Vec2;
 use image::RgbImage;
+use retarget::tracks::{TrackedFrame, Tracks};
 use tracking::pipeline::FrameOutput;
-use tracking::record::FrameRecord;
+use tracking::record::{CameraRecord, FrameRecord, TracksDocument};
+use tracking::session::{FrameObservations, Session, SessionInfo};
 
 use crate::demo::DemoSession;
 
@@ -26,8 +29,8 @@ pub struct StudioSession {
     pub source: String,
     pub fps: f64,
     pub frames: Vec<RgbImage>,
-    /// Per frame: detection, crop and TrackNet's output.
-    pub outputs: Vec<FrameOutput>,
+    /// Per frame: the detected landmarks and the network crop.
+    pub observations: Vec<FrameObservations>,
     /// Per frame: the final tracking (with the personalized blendshapes).
     pub records: Vec<FrameRecord>,
     /// dS_0, dS_i, dR_0, dR_i as ModelNet predicted them.
@@ -44,18 +47,60 @@ pub struct StudioSession {
 
 impl StudioSession {
     pub fn from_demo(model: &FaceModel, demo: DemoSession) -> Self {
-        let correction_mm = correction_sizes_mm(model, &demo.learned_blendshapes);
+        let mut session = Self::from_tracking(
+            model,
+            "built-in demo".into(),
+            demo.config.fps,
+            demo.frames,
+            demo.outputs,
+            demo.records,
+            demo.learned,
+            demo.learned_blendshapes,
+            demo.selected_frames,
+            demo.intrinsics,
+        );
+        session.truth = Some(demo.truth);
+        session
+    }
+
+    /// A session from tracked and personalized footage (frames, outputs and records are
+    /// aligned by position).
+    #[allow(clippy::too_many_arguments)] // each is one part of the pipeline's result
+    pub fn from_tracking(
+        model: &FaceModel,
+        source: String,
+        fps: f64,
+        frames: Vec<RgbImage>,
+        outputs: Vec<FrameOutput>,
+        records: Vec<FrameRecord>,
+        corrections: PersonalCorrections,
+        blendshapes: Arc<PersonalizedBlendshapes>,
+        selected_frames: Vec<usize>,
+        intrinsics: Intrinsics,
+    ) -> Self {
+        let correction_mm = correction_sizes_mm(model, &blendshapes);
+        let observations = outputs
+            .iter()
+            .map(|o| FrameObservations {
+                detected: o
+                    .observations
+                    .as_ref()
+                    .map(|obs| obs.points.iter().map(|p| p.pixel.to_array()).collect())
+                    .unwrap_or_default(),
+                crop: o.crop.map(|c| c.to_array()),
+            })
+            .collect();
         Self {
-            source: "built-in demo".into(),
-            fps: demo.config.fps,
-            frames: demo.frames,
-            outputs: demo.outputs,
-            records: demo.records,
-            corrections: demo.learned,
-            blendshapes: demo.learned_blendshapes,
-            truth: Some(demo.truth),
-            selected_frames: demo.selected_frames,
-            intrinsics: demo.intrinsics,
+            source,
+            fps,
+            frames,
+            observations,
+            records,
+            corrections,
+            blendshapes,
+            truth: None,
+            selected_frames,
+            intrinsics,
             correction_mm,
         }
     }
@@ -77,10 +122,9 @@ impl StudioSession {
 
     /// What the panels draw over frame `k`.
     pub fn overlay(&self, k: usize) -> FrameOverlay {
-        let output = self.outputs.get(k);
-        let detected = output
-            .and_then(|o| o.observations.as_ref())
-            .map(|obs| obs.points.iter().map(|p| p.pixel).collect())
+        let observed = self.observations.get(k);
+        let detected = observed
+            .map(|o| o.detected.iter().map(|p| Vec2::from(*p)).collect())
             .unwrap_or_default();
         let track = self.records.get(k).and_then(|r| r.track.as_ref());
         FrameOverlay {
@@ -89,9 +133,152 @@ impl StudioSession {
                 .map(|t| t.landmarks_68.iter().map(|p| Vec2::from(*p)).collect())
                 .unwrap_or_default(),
             face_box: track.map(|t| t.face_box),
-            crop: output.and_then(|o| o.crop).map(|c| c.to_array()),
+            crop: observed.and_then(|o| o.crop),
             confidence: track.map(|t| t.confidence),
         }
+    }
+
+    /// The session as a file (`tracking::session`, version 2: the footage and what was
+    /// detected in it travel with the model and the tracking).
+    pub fn to_file(&self) -> Session {
+        let mut tracks = TracksDocument::new(self.source.clone(), self.fps);
+        let k = &self.intrinsics;
+        tracks.camera = Some(CameraRecord {
+            width: k.width,
+            height: k.height,
+            focal_px: k.focal_px,
+            cx: k.cx,
+            cy: k.cy,
+        });
+        tracks.frames = self.records.clone();
+        Session {
+            info: SessionInfo {
+                created_by: format!("likeness {} studio", env!("CARGO_PKG_VERSION")),
+                source: self.source.clone(),
+                selected_frames: self.selected_frames.clone(),
+                backend: String::new(),
+                networks: String::new(),
+            },
+            corrections: self.corrections.clone(),
+            tracks,
+            footage: Some(self.frames.clone()),
+            observations: self.observations.clone(),
+        }
+    }
+
+    /// A session from its file. Files written by `likeness personalize` hold no footage:
+    /// their frames are shown grey (the model and the tracking are all there).
+    pub fn from_file(model: &FaceModel, file: Session) -> Result<Self, String> {
+        let Some(camera) = file.tracks.camera else {
+            return Err("the session has no camera (its tracking has no frames)".into());
+        };
+        if camera.width == 0 || camera.height == 0 {
+            return Err("the session's camera has no size".into());
+        }
+        if ![camera.focal_px, camera.cx, camera.cy]
+            .iter()
+            .all(|v| v.is_finite())
+            || camera.focal_px <= 0.0
+        {
+            return Err("the session's camera is not valid".into());
+        }
+        let count = file.tracks.frames.len();
+        let frames = match file.footage {
+            Some(frames)
+                if frames
+                    .iter()
+                    .all(|f| f.dimensions() == (camera.width, camera.height)) =>
+            {
+                frames
+            }
+            Some(_) => return Err("the footage is not the size of the session's camera".into()),
+            None => {
+                let grey = RgbImage::from_pixel(camera.width, camera.height, image::Rgb([96; 3]));
+                vec![grey; count]
+            }
+        };
+        let blendshapes = Arc::new(
+            model
+                .personalize(&file.corrections)
+                .map_err(|e| format!("the personal corrections: {e}"))?,
+        );
+        let observations = if file.observations.len() == count {
+            file.observations
+        } else {
+            vec![FrameObservations::default(); count]
+        };
+        let correction_mm = correction_sizes_mm(model, &blendshapes);
+        Ok(Self {
+            source: file.info.source,
+            fps: if file.tracks.fps.is_finite() && file.tracks.fps > 0.0 {
+                file.tracks.fps
+            } else {
+                30.0
+            },
+            frames,
+            observations,
+            records: file.tracks.frames,
+            corrections: file.corrections,
+            blendshapes,
+            truth: None,
+            selected_frames: file
+                .info
+                .selected_frames
+                .into_iter()
+                .filter(|&k| k < count)
+                .collect(),
+            intrinsics: Intrinsics {
+                focal_px: camera.focal_px,
+                cx: camera.cx,
+                cy: camera.cy,
+                width: camera.width,
+                height: camera.height,
+            },
+            correction_mm,
+        })
+    }
+
+    /// Writes the session atomically to `path`.
+    pub fn save(&self, path: &std::path::Path) -> Result<(), String> {
+        self.to_file()
+            .save(path)
+            .map_err(|e| format!("cannot save {}: {e}", path.display()))
+    }
+
+    /// Reads a session file.
+    pub fn load(model: &FaceModel, path: &std::path::Path) -> Result<Self, String> {
+        let file = Session::load(path).map_err(|e| e.to_string())?;
+        Self::from_file(model, file).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// The tracked frames as retargeting input (ARKit channels and head rotation), frames
+    /// without a face left out and counted.
+    pub fn tracks(&self) -> Tracks {
+        let mut tracks = Tracks::default();
+        for record in &self.records {
+            let Some(track) = record.track.as_ref() else {
+                tracks.frames_without_face += 1;
+                continue;
+            };
+            let mut ict = [0.0f32; NUM_BLENDSHAPES];
+            for (o, v) in ict.iter_mut().zip(&track.weights) {
+                *o = *v;
+            }
+            tracks.frames.push(TrackedFrame {
+                time_s: record.time_s as f32,
+                arkit: ict_to_arkit(&ict),
+                rotation_deg: Some(track.rotation_deg),
+            });
+        }
+        tracks
+    }
+
+    /// The head rotation [yaw, pitch, roll] in degrees of frame `k` (zero without a face).
+    pub fn rotation_deg(&self, k: usize) -> [f32; 3] {
+        self.records
+            .get(k)
+            .and_then(|r| r.track.as_ref())
+            .map_or([0.0; 3], |t| t.rotation_deg)
     }
 
     /// Blendshape indices ordered by the size of their personal correction, largest first.

@@ -228,6 +228,8 @@ pub fn run_personalize(
         },
         corrections,
         tracks,
+        footage: None,
+        observations: Vec::new(),
     };
     session.save(out)?;
     println!(

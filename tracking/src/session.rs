@@ -22,7 +22,21 @@ use crate::record::{TracksDocument, write_atomically};
 pub const SESSION_FORMAT: &str = "likeness-session";
 /// Version 1: corrections as f32 tensors `dS0` [3,128,128], `dS` [53,3,128,128], `dR0`,
 /// `dR`; metadata `format`, `version`, `info`, `tracks`.
-pub const SESSION_VERSION: u32 = 1;
+/// Version 2 (the studio's sessions) adds, both optional: the footage as a u8 tensor
+/// `frames` [N, H, W, 3] (RGB, rows top to bottom), aligned with the tracking's frames, and
+/// metadata `observations` (per frame the detected landmarks and the crop). Version 1 files
+/// still load, without footage.
+pub const SESSION_VERSION: u32 = 2;
+
+/// What the face locator saw in one frame (kept so the studio can show it again).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FrameObservations {
+    /// Detected landmarks, pixels.
+    pub detected: Vec<[f32; 2]>,
+    /// The network crop [x, y, width, height], pixels.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub crop: Option<[f32; 4]>,
+}
 
 /// How the personalized model was made.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -46,6 +60,11 @@ pub struct Session {
     pub info: SessionInfo,
     pub corrections: PersonalCorrections,
     pub tracks: TracksDocument,
+    /// The footage, one image per tracking frame, all of one size (absent in files made by
+    /// `likeness personalize`).
+    pub footage: Option<Vec<image::RgbImage>>,
+    /// Per tracking frame, when known (empty otherwise).
+    pub observations: Vec<FrameObservations>,
 }
 
 fn uv_to_chw(map: &UvMap, out: &mut Vec<u8>) {
@@ -79,12 +98,45 @@ impl Session {
                 .map_err(|e| TrackingError::InvalidInput(e.to_string()))
         }
         let err = |e: safetensors::SafeTensorError| TrackingError::InvalidInput(e.to_string());
-        let tensors = vec![
+        let mut tensors = vec![
             ("dS0", view(&ds0, vec![3, n, n])?),
             ("dS", view(&ds, vec![NUM_BLENDSHAPES, 3, n, n])?),
             ("dR0", view(&dr0, vec![3, n, n])?),
             ("dR", view(&dr, vec![NUM_BLENDSHAPES, 3, n, n])?),
         ];
+        let mut footage_bytes = Vec::new();
+        let mut footage_shape = Vec::new();
+        if let Some(frames) = self.footage.as_ref().filter(|f| !f.is_empty()) {
+            let (w, h) = frames[0].dimensions();
+            if frames.iter().any(|f| f.dimensions() != (w, h)) {
+                return Err(TrackingError::InvalidInput(
+                    "the session's frames are not all of one size".into(),
+                ));
+            }
+            if frames.len() != self.tracks.frames.len() {
+                return Err(TrackingError::InvalidInput(format!(
+                    "{} frames of footage for {} tracked frames",
+                    frames.len(),
+                    self.tracks.frames.len()
+                )));
+            }
+            footage_bytes.reserve(frames.len() * (w * h * 3) as usize);
+            for f in frames {
+                footage_bytes.extend_from_slice(f.as_raw());
+            }
+            footage_shape = vec![frames.len(), h as usize, w as usize, 3];
+        }
+        if !footage_shape.is_empty() {
+            tensors.push((
+                "frames",
+                safetensors::tensor::TensorView::new(
+                    safetensors::Dtype::U8,
+                    footage_shape,
+                    &footage_bytes,
+                )
+                .map_err(|e| TrackingError::InvalidInput(e.to_string()))?,
+            ));
+        }
         let mut meta = HashMap::new();
         meta.insert("format".to_string(), SESSION_FORMAT.to_string());
         meta.insert("version".to_string(), SESSION_VERSION.to_string());
@@ -94,6 +146,13 @@ impl Session {
                 .map_err(|e| TrackingError::InvalidInput(e.to_string()))?,
         );
         meta.insert("tracks".to_string(), self.tracks.to_json());
+        if !self.observations.is_empty() {
+            meta.insert(
+                "observations".to_string(),
+                serde_json::to_string(&self.observations)
+                    .map_err(|e| TrackingError::InvalidInput(e.to_string()))?,
+            );
+        }
         safetensors::serialize(tensors, Some(meta)).map_err(err)
     }
 
@@ -163,8 +222,60 @@ impl Session {
                 .map(|i| chw_to_uv(&v[i * plane..(i + 1) * plane], n, n))
                 .collect()
         };
+        let footage = match st.tensor("frames") {
+            Err(_) => None,
+            Ok(t) => {
+                let shape = t.shape();
+                let [count, h, w, 3] = shape else {
+                    return Err(format!(
+                        "tensor `frames` is {shape:?}, expected [N, H, W, 3]"
+                    ));
+                };
+                if t.dtype() != safetensors::Dtype::U8 {
+                    return Err(format!("tensor `frames` is {:?}, expected U8", t.dtype()));
+                }
+                if *count != tracks.frames.len() {
+                    return Err(format!(
+                        "{count} frames of footage for {} tracked frames",
+                        tracks.frames.len()
+                    ));
+                }
+                let (w32, h32) = (
+                    u32::try_from(*w).map_err(|_| "frames are too wide")?,
+                    u32::try_from(*h).map_err(|_| "frames are too tall")?,
+                );
+                let size = w * h * 3;
+                let frames = t
+                    .data()
+                    .chunks_exact(size.max(1))
+                    .map(|bytes| image::RgbImage::from_raw(w32, h32, bytes.to_vec()))
+                    .collect::<Option<Vec<_>>>()
+                    .ok_or("tensor `frames` has the wrong size")?;
+                Some(frames)
+            }
+        };
+        let observations: Vec<FrameObservations> = match meta.get("observations") {
+            None => Vec::new(),
+            Some(text) => serde_json::from_str(text).map_err(|e| format!("`observations`: {e}"))?,
+        };
+        if !observations.is_empty() && observations.len() != tracks.frames.len() {
+            return Err(format!(
+                "{} observations for {} tracked frames",
+                observations.len(),
+                tracks.frames.len()
+            ));
+        }
+        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+        if observations
+            .iter()
+            .any(|o| !o.detected.iter().all(|p| finite(p)) || !o.crop.is_none_or(|c| finite(&c)))
+        {
+            return Err("`observations` has NaN or infinite values".into());
+        }
         Ok(Self {
             info,
+            footage,
+            observations,
             corrections: PersonalCorrections {
                 identity_shape: chw_to_uv(&ds0, n, n),
                 expression_shapes: split(&ds),

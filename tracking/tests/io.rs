@@ -11,7 +11,7 @@ use face::NUM_BLENDSHAPES;
 use face::uv::CORRECTION_SIZE;
 use tracking::FaceParams;
 use tracking::record::{FrameRecord, TracksDocument};
-use tracking::session::{Session, SessionInfo};
+use tracking::session::{FrameObservations, Session, SessionInfo};
 use tracking::source::{InputSpec, Next, check_frame_size, natural_cmp};
 
 fn ffmpeg(args: &[&str]) {
@@ -257,6 +257,8 @@ fn session_round_trips_and_bad_files_are_refused() {
         },
         corrections,
         tracks: sample_document(),
+        footage: None,
+        observations: Vec::new(),
     };
     let dir = temp_dir("session");
     let path = dir.join("person.likeness");
@@ -277,7 +279,7 @@ fn session_round_trips_and_bad_files_are_refused() {
     let future = {
         let header_len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
         let header = String::from_utf8(bytes[8..8 + header_len].to_vec()).unwrap();
-        let patched = header.replace("\"version\":\"1\"", "\"version\":\"9\"");
+        let patched = header.replace("\"version\":\"2\"", "\"version\":\"9\"");
         assert_ne!(patched, header, "the header holds the version");
         let mut out = (patched.len() as u64).to_le_bytes().to_vec();
         out.extend_from_slice(patched.as_bytes());
@@ -289,4 +291,65 @@ fn session_round_trips_and_bad_files_are_refused() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("newer"), "{e}");
+}
+
+/// A file with its header's version replaced.
+fn with_version(bytes: &[u8], from: &str, to: &str) -> Vec<u8> {
+    let header_len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header = String::from_utf8(bytes[8..8 + header_len].to_vec()).unwrap();
+    let patched = header.replace(
+        &format!("\"version\":\"{from}\""),
+        &format!("\"version\":\"{to}\""),
+    );
+    assert_ne!(patched, header, "the header holds the version");
+    let mut out = (patched.len() as u64).to_le_bytes().to_vec();
+    out.extend_from_slice(patched.as_bytes());
+    out.extend_from_slice(&bytes[8 + header_len..]);
+    out
+}
+
+#[test]
+fn session_keeps_its_footage_and_observations_and_version_1_still_loads() {
+    let tracks = sample_document();
+    let n = tracks.frames.len();
+    let footage: Vec<image::RgbImage> = (0..n)
+        .map(|k| {
+            image::RgbImage::from_fn(5, 3, |x, y| image::Rgb([k as u8, x as u8, y as u8 * 40]))
+        })
+        .collect();
+    let observations: Vec<FrameObservations> = (0..n)
+        .map(|k| FrameObservations {
+            detected: vec![[k as f32, 1.5], [2.0, 3.25]],
+            crop: (k % 2 == 0).then_some([1.0, 2.0, 30.0, 40.0]),
+        })
+        .collect();
+    let session = Session {
+        info: SessionInfo::default(),
+        corrections: face::PersonalCorrections::zeros(),
+        tracks,
+        footage: Some(footage),
+        observations,
+    };
+    let dir = temp_dir("session-footage");
+    let path = dir.join("studio.likeness");
+    session.save(&path).expect("save");
+    let back = Session::load(&path).expect("load");
+    assert_eq!(back, session, "frames and observations round-trip exactly");
+
+    // Footage that does not match the tracking is refused when saving.
+    let mut short = session.clone();
+    short.footage.as_mut().unwrap().pop();
+    assert!(short.save(&dir.join("short.likeness")).is_err());
+    let mut mixed = session.clone();
+    mixed.footage.as_mut().unwrap()[0] = image::RgbImage::new(4, 3);
+    assert!(mixed.save(&dir.join("mixed.likeness")).is_err());
+
+    // A version 1 file (no footage) still loads.
+    let mut plain = session.clone();
+    plain.footage = None;
+    plain.observations.clear();
+    let bytes = plain.to_bytes().unwrap();
+    std::fs::write(dir.join("v1.likeness"), with_version(&bytes, "2", "1")).unwrap();
+    let v1 = Session::load(&dir.join("v1.likeness")).expect("a version 1 file loads");
+    assert_eq!(v1, plain);
 }

@@ -1,0 +1,283 @@
+//! Footage into a studio session, off the UI thread: an image, a folder of images, a video
+//! file or a webcam is tracked (landmarks, TrackNet, refinement), personalized (ModelNet on
+//! the most varied frames) and tracked again with the person's own blendshapes, the same
+//! pipeline as `likeness personalize`, while the studio shows the progress and can cancel.
+
+use std::ops::ControlFlow;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+
+use anyhow::{Context, Result, bail};
+use face::FaceModel;
+use tracking::pipeline::{TrackEvent, Tracker, TrackerConfig};
+use tracking::source::InputSpec;
+
+use crate::scene::Scene;
+use crate::studio_session::StudioSession;
+
+/// What to process.
+#[derive(Clone, Debug)]
+pub struct FootageRequest {
+    /// An image, a folder of images, a video file, or `webcam[:DEVICE]`.
+    pub input: String,
+    /// The studio keeps every frame in memory at full size, so long footage is cut here
+    /// (a webcam records until this many frames or until it is stopped).
+    pub max_frames: usize,
+    /// How many frames ModelNet personalizes from.
+    pub personalize_frames: usize,
+}
+
+impl FootageRequest {
+    pub fn new(input: impl Into<String>) -> Self {
+        Self {
+            input: input.into(),
+            max_frames: 600,
+            personalize_frames: 8,
+        }
+    }
+}
+
+/// Where a job is.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Progress {
+    pub stage: &'static str,
+    pub done: usize,
+    pub total: Option<usize>,
+}
+
+/// Tracks and personalizes `request.input`. `cancel` is checked between frames; `progress`
+/// hears about every frame and stage.
+pub fn process_footage(
+    scene: &Scene,
+    request: &FootageRequest,
+    cancel: &AtomicBool,
+    mut progress: impl FnMut(Progress),
+) -> Result<StudioSession> {
+    let input = request.input.trim();
+    let spec = InputSpec::parse(input).with_context(|| format!("cannot open `{input}`"))?;
+    progress(Progress {
+        stage: "loading the networks",
+        done: 0,
+        total: None,
+    });
+    let face = Arc::new(FaceModel::new(scene.model.template.clone()));
+    let config = TrackerConfig {
+        threads: 1,
+        ..TrackerConfig::default()
+    };
+    let mut tracker = Tracker::new(face.clone(), config, spec.is_footage())
+        .context("tracking needs the networks and the OpenSeeFace models")?;
+    let mut source = spec
+        // Images have no frame rate of their own: they play at 30 fps.
+        .open(30.0)
+        .with_context(|| format!("cannot open `{input}`"))?;
+    let total = source.len_hint().map(|n| n.min(request.max_frames));
+    let fps = source.fps();
+    let live = source.is_live();
+    let describe = source.describe();
+    let mut frames = Vec::new();
+    let mut outputs = Vec::new();
+    let (mut skipped, mut other_size) = (0usize, 0usize);
+    let mut size = None;
+    let mut cancelled = false;
+    let mut seen = 0usize;
+    let result = tracker.track_source(source.as_mut(), |event| {
+        seen += 1;
+        match event {
+            TrackEvent::Skipped(skip) => {
+                tracing::warn!("frame {}: {}", skip.index, skip.error);
+                skipped += 1;
+            }
+            TrackEvent::Frame(frame, out) => {
+                let dims = frame.image.dimensions();
+                // One session has one camera: frames of another size (a folder of mixed
+                // images) are left out and counted.
+                if *size.get_or_insert(dims) != dims {
+                    other_size += 1;
+                } else {
+                    frames.push(frame.image);
+                    outputs.push(*out);
+                }
+            }
+        }
+        progress(Progress {
+            stage: "tracking",
+            done: seen,
+            total,
+        });
+        if cancel.load(Ordering::Relaxed) {
+            // Stopping a live camera ends the recording; anything else is abandoned.
+            cancelled = !live;
+            return ControlFlow::Break(());
+        }
+        if frames.len() >= request.max_frames {
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    });
+    if cancelled {
+        bail!("cancelled");
+    }
+    if let Err(e) = result {
+        if frames.is_empty() {
+            return Err(e).with_context(|| format!("cannot read `{input}`"));
+        }
+        tracing::warn!(
+            "{input}: {e} (keeping the {} frames before it)",
+            frames.len()
+        );
+    }
+    if skipped > 0 || other_size > 0 {
+        tracing::warn!(
+            "{input}: {skipped} unreadable frame(s) and {other_size} of another size left out"
+        );
+    }
+    let Some((width, height)) = size.filter(|_| !frames.is_empty()) else {
+        bail!("`{input}` has no readable frames");
+    };
+    if !outputs.iter().any(|o| o.record.face) {
+        bail!("no face was found in `{input}`");
+    }
+    progress(Progress {
+        stage: "personalizing (ModelNet)",
+        done: 0,
+        total: None,
+    });
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut model_net =
+        tracking::networks::ModelNet::load(&tracker.manifest, tracker.backend(), cores)?;
+    let (corrections, picked) =
+        tracking::personalize::personalize(&mut model_net, &outputs, request.personalize_frames)?;
+    if cancel.load(Ordering::Relaxed) {
+        bail!("cancelled");
+    }
+    let blendshapes = Arc::new(face.personalize(&corrections)?);
+    tracker.set_blendshapes(blendshapes.clone())?;
+    tracker.reset();
+    let mut records = Vec::with_capacity(outputs.len());
+    for (k, out) in outputs.iter().enumerate() {
+        records.push(tracker.retrack(out, width, height));
+        progress(Progress {
+            stage: "tracking with the personal blendshapes",
+            done: k + 1,
+            total: Some(outputs.len()),
+        });
+    }
+    // The network inputs were kept for ModelNet only; they are most of a frame's memory.
+    for out in &mut outputs {
+        out.input = None;
+    }
+    // Positions in the session (frames left out shift source indices).
+    let selected_frames = picked;
+    Ok(StudioSession::from_tracking(
+        &scene.model,
+        describe,
+        fps,
+        frames,
+        outputs,
+        records,
+        corrections,
+        blendshapes,
+        selected_frames,
+        tracker.intrinsics(width, height),
+    ))
+}
+
+enum JobMessage {
+    Progress(Progress),
+    Done(Result<Box<StudioSession>, String>),
+}
+
+/// A [`process_footage`] running on its own thread.
+pub struct FootageJob {
+    pub input: String,
+    pub progress: Progress,
+    cancel: Arc<AtomicBool>,
+    receiver: mpsc::Receiver<JobMessage>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl FootageJob {
+    /// Starts processing; `repaint` is called whenever there is news for the UI.
+    pub fn start(
+        scene: Arc<Scene>,
+        request: FootageRequest,
+        repaint: impl Fn() + Send + 'static,
+    ) -> Result<Self> {
+        let (sender, receiver) = mpsc::channel();
+        let cancel = Arc::new(AtomicBool::new(false));
+        let input = request.input.clone();
+        let thread = {
+            let cancel = cancel.clone();
+            std::thread::Builder::new()
+                .name("likeness footage".into())
+                .spawn(move || {
+                    let result = process_footage(&scene, &request, &cancel, |p| {
+                        let _ = sender.send(JobMessage::Progress(p));
+                        repaint();
+                    })
+                    .map(Box::new)
+                    .map_err(|e| format!("{}: {e:#}", request.input));
+                    let _ = sender.send(JobMessage::Done(result));
+                    repaint();
+                })
+                .context("cannot start the footage thread")?
+        };
+        Ok(Self {
+            input,
+            progress: Progress {
+                stage: "starting",
+                done: 0,
+                total: None,
+            },
+            cancel,
+            receiver,
+            thread: Some(thread),
+        })
+    }
+
+    /// Asks the job to stop (a webcam stops recording and goes on to personalize).
+    pub fn cancel(&self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+
+    pub fn cancelling(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed)
+    }
+
+    /// Takes the news: `Some` once, when the job has ended.
+    pub fn poll(&mut self) -> Option<Result<Box<StudioSession>, String>> {
+        loop {
+            match self.receiver.try_recv() {
+                Ok(JobMessage::Progress(p)) => self.progress = p,
+                Ok(JobMessage::Done(result)) => {
+                    self.join();
+                    return Some(result);
+                }
+                Err(mpsc::TryRecvError::Empty) => return None,
+                Err(mpsc::TryRecvError::Disconnected) => {
+                    self.join();
+                    return Some(Err(format!(
+                        "{}: the footage thread stopped unexpectedly",
+                        self.input
+                    )));
+                }
+            }
+        }
+    }
+
+    fn join(&mut self) {
+        if let Some(handle) = self.thread.take() {
+            let _ = handle.join();
+        }
+    }
+}
+
+impl Drop for FootageJob {
+    fn drop(&mut self) {
+        // Closing the studio mid-job: stop the thread rather than leave it tracking.
+        self.cancel();
+    }
+}

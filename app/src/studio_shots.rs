@@ -1,0 +1,308 @@
+//! The studio's panels as PNG files without a display (`demo --headless`, and `studio` on a
+//! machine without one): the real [`StudioApp`] on a session, drawn frame by frame by
+//! egui's headless harness on whatever wgpu adapter there is (lavapipe without a GPU).
+//!
+//! `egui_kittest` is egui's own headless runner: it drives an eframe app without a window
+//! and reads back what egui-wgpu drew, custom wgpu textures included. Writing that loop by
+//! hand would repeat it, and the files would then not be what the studio shows.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result, anyhow};
+use egui_kittest::Harness;
+use egui_kittest::wgpu::WgpuTestRenderer;
+
+use crate::headless::save_png;
+use crate::puppet_panel::DriveTarget;
+use crate::scene::{Scene, StudioView};
+use crate::studio::{Panel, StudioApp};
+use crate::studio_session::StudioSession;
+use crate::uv_panel::UvLayer;
+
+/// Window size of the written panels, in points (one pixel per point).
+pub const SHOT_SIZE: [f32; 2] = [1280.0, 800.0];
+
+/// One written panel: its file stem and how the studio is set up for it.
+struct Shot {
+    name: &'static str,
+    setup: fn(&mut StudioApp, &Scene) -> Result<()>,
+}
+
+fn input_panel(app: &mut StudioApp, overlays: bool) -> Result<()> {
+    app.state.panel = Panel::Input;
+    let p = &mut app.state.playback;
+    p.show_detected = overlays;
+    p.show_model = overlays;
+    p.show_boxes = overlays;
+    app.overlay.opacity = if overlays { 0.6 } else { 0.0 };
+    Ok(())
+}
+
+fn maps_panel(app: &mut StudioApp, layer: UvLayer) -> Result<()> {
+    app.state.panel = Panel::Maps;
+    app.uv_panel.layer = Some(layer);
+    Ok(())
+}
+
+const SHOTS: &[Shot] = &[
+    Shot {
+        name: "input",
+        setup: |app, _| input_panel(app, false),
+    },
+    Shot {
+        name: "overlay",
+        setup: |app, _| input_panel(app, true),
+    },
+    Shot {
+        name: "face",
+        setup: |app, _| {
+            app.state.panel = Panel::Face;
+            app.state.view = StudioView::Shaded;
+            Ok(())
+        },
+    },
+    Shot {
+        name: "blendshapes",
+        setup: |app, _| {
+            app.state.panel = Panel::Blendshapes;
+            app.blendshape_panel.show_mask = false;
+            Ok(())
+        },
+    },
+    Shot {
+        name: "static_albedo",
+        setup: |app, _| maps_panel(app, UvLayer::StaticAlbedo),
+    },
+    Shot {
+        name: "dynamic_albedo",
+        setup: |app, _| maps_panel(app, UvLayer::DynamicAlbedo),
+    },
+    Shot {
+        name: "frame_albedo",
+        setup: |app, _| maps_panel(app, UvLayer::FrameAlbedo),
+    },
+    Shot {
+        name: "attention_mask",
+        setup: |app, _| maps_panel(app, UvLayer::Mask),
+    },
+    Shot {
+        name: "attention_mask_on_mesh",
+        setup: |app, _| {
+            app.state.panel = Panel::Blendshapes;
+            app.blendshape_panel.show_mask = true;
+            Ok(())
+        },
+    },
+    Shot {
+        name: "shape_correction",
+        setup: |app, _| maps_panel(app, UvLayer::ShapeCorrection),
+    },
+    Shot {
+        name: "lighting_and_motion",
+        setup: |app, _| {
+            app.state.panel = Panel::Motion;
+            Ok(())
+        },
+    },
+    Shot {
+        name: "puppet",
+        setup: |app, _| {
+            app.state.panel = Panel::Puppet;
+            app.puppet_panel.drive = DriveTarget::Puppet;
+            app.puppet_panel.ensure_demo_puppet()
+        },
+    },
+    Shot {
+        name: "person_b",
+        setup: |app, scene| {
+            app.state.panel = Panel::Puppet;
+            app.puppet_panel.drive_person_b(scene)
+        },
+    },
+];
+
+/// egui-wgpu on the preferred software or hardware adapter, created here rather than by
+/// the harness's `wgpu()` so a machine without any adapter gets an error, not a panic.
+fn headless_renderer() -> Result<WgpuTestRenderer> {
+    let setup = egui_kittest::wgpu::default_wgpu_setup();
+    let instance = pollster::block_on(setup.new_instance());
+    let render_state = pollster::block_on(egui_wgpu::RenderState::create(
+        &egui_wgpu::WgpuConfiguration {
+            wgpu_setup: setup,
+            ..Default::default()
+        },
+        &instance,
+        None,
+        egui_wgpu::RendererOptions::PREDICTABLE,
+    ))
+    .map_err(|e| {
+        anyhow!(
+            "no GPU adapter for drawing the studio's panels ({e}; on Debian install mesa-vulkan-drivers for lavapipe)"
+        )
+    })?;
+    Ok(WgpuTestRenderer::from_render_state(render_state))
+}
+
+/// The names of the files [`write_studio_panels`] writes, in order.
+pub fn panel_file_names() -> Vec<String> {
+    SHOTS
+        .iter()
+        .map(|s| format!("panel_{}.png", s.name))
+        .collect()
+}
+
+/// Writes every panel of the studio on `session` to `out_dir/panel_<name>.png`, paused on
+/// `frame` (default: the middle of the clip) with the blendshape of the largest personal
+/// correction selected.
+pub fn write_studio_panels(
+    scene: Arc<Scene>,
+    session: Arc<StudioSession>,
+    frame: Option<usize>,
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(out_dir)
+        .with_context(|| format!("cannot create {}", out_dir.display()))?;
+    let frames = session.frame_count();
+    if frames == 0 {
+        anyhow::bail!("the session has no frames to show");
+    }
+    let frame = frame.unwrap_or(frames / 2).min(frames - 1);
+    let selected = session.by_correction_size().first().copied();
+    let app_scene = scene.clone();
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(SHOT_SIZE[0], SHOT_SIZE[1]))
+        .with_pixels_per_point(1.0)
+        .renderer(headless_renderer()?)
+        .build_eframe(move |cc| {
+            let mut app = StudioApp::new(cc, app_scene).with_session(session);
+            app.state.show_timings = false;
+            app.state.playback.playing = false;
+            app.state.playback.frame = frame;
+            if let Some(i) = selected {
+                app.state.selected = i;
+            }
+            app
+        });
+    let mut written = Vec::new();
+    for shot in SHOTS {
+        (shot.setup)(harness.state_mut(), &scene)
+            .with_context(|| format!("setting up the {} panel", shot.name))?;
+        // Textures (frames, maps, the puppet) upload on the first frame a panel is drawn;
+        // the later frames show them.
+        harness.run_steps(3);
+        if let Some(error) = harness.state().state.error.clone() {
+            anyhow::bail!("the {} panel reported an error: {error}", shot.name);
+        }
+        let image = harness
+            .render()
+            .map_err(|e| anyhow!("cannot render the {} panel: {e}", shot.name))?;
+        let path = out_dir.join(format!("panel_{}.png", shot.name));
+        save_png(&image, &path)?;
+        written.push(path);
+    }
+    Ok(written)
+}
+
+/// The live panels [`bench_studio`] times.
+const BENCH_SHOTS: &[Shot] = &[
+    Shot {
+        name: "input with the reconstruction overlay",
+        setup: |app, _| input_panel(app, true),
+    },
+    Shot {
+        name: "face (3D view)",
+        setup: |app, _| {
+            app.state.panel = Panel::Face;
+            Ok(())
+        },
+    },
+    Shot {
+        name: "puppet (input beside the puppet)",
+        setup: |app, _| {
+            app.state.panel = Panel::Puppet;
+            app.puppet_panel.drive = DriveTarget::Puppet;
+            app.puppet_panel.ensure_demo_puppet()
+        },
+    },
+    Shot {
+        name: "person B (input beside person B)",
+        setup: |app, scene| {
+            app.state.panel = Panel::Puppet;
+            app.puppet_panel.drive_person_b(scene)
+        },
+    },
+];
+
+/// One line of [`bench_studio`]'s table.
+#[derive(Clone, Debug)]
+pub struct BenchRow {
+    pub panel: &'static str,
+    pub frames: usize,
+    /// Mean and 95th percentile time of one studio frame (UI, 3D views, egui's paint and
+    /// the read-back of the picture), milliseconds.
+    pub mean_ms: f64,
+    pub p95_ms: f64,
+}
+
+impl BenchRow {
+    pub fn fps(&self) -> f64 {
+        1000.0 / self.mean_ms.max(1e-9)
+    }
+}
+
+/// Times the studio playing `session` at `size` pixels on each live panel, one after the
+/// other in one process: every frame runs the whole UI, renders the 3D views and paints
+/// the window through egui-wgpu, then reads the picture back (which a window does not do,
+/// so the numbers are an upper bound on the cost of a frame).
+pub fn bench_studio(
+    scene: Arc<Scene>,
+    session: Arc<StudioSession>,
+    size: [u32; 2],
+    frames: usize,
+) -> Result<Vec<BenchRow>> {
+    if session.frame_count() == 0 {
+        anyhow::bail!("the session has no frames to play");
+    }
+    let app_scene = scene.clone();
+    let mut harness = Harness::builder()
+        .with_size(egui::vec2(size[0] as f32, size[1] as f32))
+        .with_pixels_per_point(1.0)
+        .renderer(headless_renderer()?)
+        .build_eframe(move |cc| {
+            let mut app = StudioApp::new(cc, app_scene).with_session(session);
+            app.state.show_timings = false;
+            app
+        });
+    let mut rows = Vec::new();
+    for shot in BENCH_SHOTS {
+        let panel = shot.name;
+        (shot.setup)(harness.state_mut(), &scene)?;
+        harness.state_mut().state.playback.playing = true;
+        // Warm-up: the first frames upload textures and build pipelines.
+        for _ in 0..5 {
+            harness.step();
+            harness.render().map_err(|e| anyhow!("{panel}: {e}"))?;
+        }
+        let mut times = Vec::with_capacity(frames);
+        for _ in 0..frames.max(1) {
+            let started = std::time::Instant::now();
+            harness.step();
+            harness.render().map_err(|e| anyhow!("{panel}: {e}"))?;
+            times.push(started.elapsed().as_secs_f64() * 1000.0);
+        }
+        if let Some(error) = harness.state().state.error.clone() {
+            anyhow::bail!("{panel}: {error}");
+        }
+        times.sort_by(f64::total_cmp);
+        let mean_ms = times.iter().sum::<f64>() / times.len() as f64;
+        let p95_ms = times[((times.len() as f64 * 0.95) as usize).min(times.len() - 1)];
+        rows.push(BenchRow {
+            panel,
+            frames: times.len(),
+            mean_ms,
+            p95_ms,
+        });
+    }
+    Ok(rows)
+}
