@@ -13,8 +13,8 @@ use face::{BlendshapeWeights, ICT_NAMES, NUM_BLENDSHAPES};
 use renderer::{FaceRenderer, FrameParams, TextureLayers, ViewMode};
 
 use crate::colormap::colour_bar;
-use crate::gpu_view::{VIEW_FORMAT, ViewTarget, interactive_options, orbit_input};
-use crate::scene::{Orbit, Scene, StudioView, frame_params, mesh_data};
+use crate::gpu_view::{ViewTarget, orbit_input, person_renderer};
+use crate::scene::{Orbit, Scene, StudioView, frame_params};
 use crate::studio_session::StudioSession;
 
 /// How the list is ordered.
@@ -278,16 +278,7 @@ impl BlendshapePanel {
     ) -> Result<(), String> {
         let id = Arc::as_ptr(session) as usize;
         if self.gpu.as_ref().is_none_or(|g| g.session != id) {
-            let mesh = mesh_data(&scene.model.template, &session.blendshapes);
-            let face = FaceRenderer::with_options(
-                &rs.device,
-                &rs.queue,
-                VIEW_FORMAT,
-                interactive_options(rs),
-                &mesh,
-                &scene.textures,
-            )
-            .map_err(|e| format!("personalized view unavailable: {e}"))?;
+            let face = person_renderer(rs, scene, &session.blendshapes, "personalized view")?;
             self.gpu = Some(PersonalGpu {
                 session: id,
                 face,

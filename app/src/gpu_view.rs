@@ -96,3 +96,43 @@ pub fn orbit_input(ui: &egui::Ui, response: &egui::Response, orbit: &mut crate::
         orbit.distance_cm = (orbit.distance_cm - scroll * 0.1).clamp(30.0, 200.0);
     }
 }
+
+/// An interactive renderer of a person's own face: the template with their personalized
+/// blendshapes (the mean albedo until [`upload_person_albedo`]). `what` names the view in
+/// the error.
+pub fn person_renderer(
+    rs: &egui_wgpu::RenderState,
+    scene: &crate::scene::Scene,
+    blendshapes: &face::PersonalizedBlendshapes,
+    what: &str,
+) -> Result<renderer::FaceRenderer, String> {
+    let mesh = crate::scene::mesh_data(&scene.model.template, blendshapes);
+    renderer::FaceRenderer::with_options(
+        &rs.device,
+        &rs.queue,
+        VIEW_FORMAT,
+        interactive_options(rs),
+        &mesh,
+        &scene.textures,
+    )
+    .map_err(|e| format!("{what} unavailable: {e}"))
+}
+
+/// Uploads the person's albedo under `weights` (equation 3, evaluated on the CPU).
+pub fn upload_person_albedo(
+    rs: &egui_wgpu::RenderState,
+    face: &mut renderer::FaceRenderer,
+    scene: &crate::scene::Scene,
+    corrections: &face::PersonalCorrections,
+    weights: &face::BlendshapeWeights,
+) -> Result<(), String> {
+    let albedo = scene
+        .model
+        .albedo(scene.albedo.face(), corrections, weights)
+        .map_err(|e| format!("albedo: {e}"))?;
+    face.set_albedo(
+        &rs.queue,
+        &crate::demo::layers_with_face(&scene.textures, &albedo),
+    )
+    .map_err(|e| e.to_string())
+}

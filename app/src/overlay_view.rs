@@ -12,8 +12,8 @@ use face::camera::HeadPose;
 use glam::Vec3;
 use renderer::{Camera, FaceRenderer, FrameParams, ViewMode};
 
-use crate::gpu_view::{VIEW_FORMAT, ViewTarget, interactive_options};
-use crate::scene::{Scene, mesh_data};
+use crate::gpu_view::{ViewTarget, person_renderer, upload_person_albedo};
+use crate::scene::Scene;
 use crate::studio_session::StudioSession;
 
 struct OverlayGpu {
@@ -89,16 +89,7 @@ impl OverlayView {
         };
         let key = Arc::as_ptr(session) as usize;
         if self.gpu.as_ref().is_none_or(|g| g.session != key) {
-            let mesh = mesh_data(&scene.model.template, &session.blendshapes);
-            let face = FaceRenderer::with_options(
-                &rs.device,
-                &rs.queue,
-                VIEW_FORMAT,
-                interactive_options(rs),
-                &mesh,
-                &scene.textures,
-            )
-            .map_err(|e| format!("face overlay unavailable: {e}"))?;
+            let face = person_renderer(rs, scene, &session.blendshapes, "face overlay")?;
             self.gpu = Some(OverlayGpu {
                 session: key,
                 face,
@@ -116,16 +107,8 @@ impl OverlayView {
         let uploaded = (k, opacity.to_bits());
         if gpu.uploaded != Some(uploaded) {
             if gpu.uploaded.is_none_or(|(shown, _)| shown != k) {
-                let albedo = scene
-                    .model
-                    .albedo(scene.albedo.face(), &session.corrections, &weights)
-                    .map_err(|e| format!("overlay albedo: {e}"))?;
-                gpu.face
-                    .set_albedo(
-                        &rs.queue,
-                        &crate::demo::layers_with_face(&scene.textures, &albedo),
-                    )
-                    .map_err(|e| e.to_string())?;
+                upload_person_albedo(rs, &mut gpu.face, scene, &session.corrections, &weights)
+                    .map_err(|e| format!("overlay: {e}"))?;
             }
             let rgba = image::DynamicImage::ImageRgb8(frame.clone()).to_rgba8();
             gpu.face

@@ -13,15 +13,18 @@ use std::sync::Arc;
 use anyhow::{Context, Result, bail};
 use face::names::{ARKIT_NAMES, NUM_ARKIT, ict_to_arkit};
 use face::{PersonalCorrections, PersonalizedBlendshapes};
-use renderer::{FaceRenderer, FrameParams, TextureLayers};
+use renderer::{FaceRenderer, FrameParams};
 use retarget::export::{live_link_csv, retarget_clip, write_animation_glb};
 use retarget::mapping::{ChannelMapping, Source, sidecar_path, write_atomically};
 use retarget::rig::{PersonalizedRig, write_rig_glb};
 use retarget::{MappingData, Puppet, PuppetPose, Retargeter};
 
-use crate::gpu_view::{VIEW_FORMAT, ViewTarget, available_pixels, interactive_options};
+use crate::gpu_view::{
+    VIEW_FORMAT, ViewTarget, available_pixels, interactive_options, person_renderer,
+    upload_person_albedo,
+};
 use crate::puppet_view::PuppetView;
-use crate::scene::{Orbit, Scene, StudioView, frame_params, mesh_data};
+use crate::scene::{Orbit, Scene, StudioView, frame_params};
 use crate::studio_panels::fit_rect;
 use crate::studio_session::StudioSession;
 
@@ -514,16 +517,7 @@ impl PuppetPanel {
             (DriveTarget::Person, Some(person)) => {
                 let key = Arc::as_ptr(&person) as usize;
                 if self.person_gpu.as_ref().is_none_or(|g| g.person != key) {
-                    let mesh = mesh_data(&scene.model.template, &person.blendshapes);
-                    let face = FaceRenderer::with_options(
-                        &rs.device,
-                        &rs.queue,
-                        VIEW_FORMAT,
-                        interactive_options(rs),
-                        &mesh,
-                        &scene.textures,
-                    )
-                    .map_err(|e| format!("person B view unavailable: {e}"))?;
+                    let face = person_renderer(rs, scene, &person.blendshapes, "person B view")?;
                     self.person_gpu = Some(PersonGpu {
                         person: key,
                         face,
@@ -538,15 +532,8 @@ impl PuppetPanel {
                     .map_err(|e| e.to_string())?;
                 if gpu.albedo_frame != Some(frame) {
                     // Person B's own dynamic albedo under person A's weights (equation 3).
-                    let albedo = scene
-                        .model
-                        .albedo(scene.albedo.face(), &person.corrections, &weights)
-                        .map_err(|e| format!("person B albedo: {e}"))?;
-                    let layers: TextureLayers =
-                        crate::demo::layers_with_face(&scene.textures, &albedo);
-                    gpu.face
-                        .set_albedo(&rs.queue, &layers)
-                        .map_err(|e| e.to_string())?;
+                    upload_person_albedo(rs, &mut gpu.face, scene, &person.corrections, &weights)
+                        .map_err(|e| format!("person B: {e}"))?;
                     gpu.albedo_frame = Some(frame);
                 }
                 let orbit = Orbit {

@@ -21,8 +21,13 @@ fn repo(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
 }
 
-fn temp_dir() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("likeness-cli-retarget-{}", std::process::id()));
+/// A fresh folder per test: tests run in parallel, and a shared one would be emptied by
+/// one test under another.
+fn temp_dir(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "likeness-cli-retarget-{test}-{}",
+        std::process::id()
+    ));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
@@ -38,7 +43,7 @@ const TRACKS: &str = r#"{"arkit_names": ["JawOpen", "eyeBlink_L", "mouthSmileLef
 
 #[test]
 fn retargets_hand_written_tracks_in_every_format() {
-    let dir = temp_dir();
+    let dir = temp_dir("formats");
     let tracks = dir.join("tracks.json");
     std::fs::write(&tracks, TRACKS).unwrap();
     for puppet in ["assets/puppets/pip.glb", "assets/puppets/bolt.glb"] {
@@ -95,7 +100,7 @@ fn retargets_hand_written_tracks_in_every_format() {
 
 #[test]
 fn bad_inputs_fail_with_a_clear_message() {
-    let dir = temp_dir();
+    let dir = temp_dir("bad-inputs");
     let tracks = dir.join("tracks.json");
     std::fs::write(&tracks, TRACKS).unwrap();
     let broken = dir.join("broken.glb");
