@@ -436,9 +436,46 @@ fn the_maps_panel_shows_each_learned_map() {
             harness.state().state.error
         );
         pictures.push(harness.render().expect("render"));
+        // Goldens of the dynamic albedo (diverging scale) and the attention mask in UV.
+        match label {
+            "Dynamic albedo" => harness.snapshot("studio_maps_dynamic_albedo"),
+            "Attention mask" => harness.snapshot("studio_maps_attention_mask"),
+            _ => {}
+        }
     }
     // The golden: the shape correction map of the selected blendshape with its colour bar.
     harness.snapshot("studio_maps_shape_correction");
+    // Fitting the scale to the selected map: a scale no larger than the shared one (equal
+    // for the blendshape with the largest correction), and the picture changes.
+    {
+        use likeness::uv_panel::UvScales;
+        let session = demo_session();
+        let model = &scene().model;
+        let shared = UvScales::new(model, &session.corrections);
+        let per_map: Vec<UvScales> = (0..face::NUM_BLENDSHAPES)
+            .map(|i| UvScales::for_blendshape(model, &session.corrections, i))
+            .collect();
+        assert!(per_map.iter().all(|s| s.dynamic_albedo <= shared.dynamic_albedo
+            && s.shape_mm <= shared.shape_mm));
+        let largest = per_map
+            .iter()
+            .map(|s| s.dynamic_albedo)
+            .fold(0.0f32, f32::max);
+        assert_eq!(largest, shared.dynamic_albedo);
+    }
+    harness.get_by_label("Dynamic albedo").click();
+    harness.run_steps(2);
+    let shared_picture = harness.render().expect("render");
+    harness.get_by_label("Fit the scale to this map").click();
+    harness.run_steps(2);
+    assert!(harness.state().uv_panel.scale_per_map);
+    let fitted = harness.render().expect("render");
+    let changed = shared_picture
+        .pixels()
+        .zip(fitted.pixels())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(changed > 1000, "fitting the scale changed {changed} pixels");
     // Every map looks different from the one before it.
     for (k, pair) in pictures.windows(2).enumerate() {
         let changed = pair[0]
@@ -662,6 +699,11 @@ fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
         changed > 5_000,
         "person B replaced the puppet ({changed} pixels)"
     );
+    // The golden: person B (a second synthetic person) with the jaw of frame k; the export
+    // message names a per-process folder, so it is left out.
+    harness.state_mut().puppet_panel.status = None;
+    harness.run_steps(1);
+    harness.snapshot("studio_person_b");
 }
 
 /// A file dropped on the window, as the native integration hands it over.

@@ -42,6 +42,8 @@ fn input_panel(app: &mut StudioApp, overlays: bool) -> Result<()> {
 fn maps_panel(app: &mut StudioApp, layer: UvLayer) -> Result<()> {
     app.state.panel = Panel::Maps;
     app.uv_panel.layer = Some(layer);
+    // Each written map fills its colour range (the legend gives its own scale).
+    app.uv_panel.scale_per_map = true;
     Ok(())
 }
 

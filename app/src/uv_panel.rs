@@ -81,10 +81,25 @@ pub fn masked(mask: &UvMap, map: &UvMap) -> UvMap {
 }
 
 impl UvScales {
+    /// The scales shared by every blendshape, so maps compare across blendshapes.
     pub fn new(model: &FaceModel, corrections: &PersonalCorrections) -> Self {
+        Self::over(model, corrections, 0..NUM_BLENDSHAPES)
+    }
+
+    /// The scales of blendshape `i` alone, so a small correction fills the colour range.
+    pub fn for_blendshape(model: &FaceModel, corrections: &PersonalCorrections, i: usize) -> Self {
+        let i = i.min(NUM_BLENDSHAPES - 1);
+        Self::over(model, corrections, i..i + 1)
+    }
+
+    fn over(
+        model: &FaceModel,
+        corrections: &PersonalCorrections,
+        blendshapes: std::ops::Range<usize>,
+    ) -> Self {
         let mut dynamic_albedo = 0.0f32;
         let mut shape_mm = 0.0f32;
-        for i in 0..NUM_BLENDSHAPES {
+        for i in blendshapes {
             let mask = model.masks.mask(i);
             dynamic_albedo =
                 dynamic_albedo.max(max_abs_mean(&masked(mask, &corrections.dynamic_albedo[i])));
@@ -156,6 +171,8 @@ pub struct UvPanel {
     textures: HashMap<(UvLayer, usize), (egui::TextureHandle, Legend)>,
     bars: HashMap<&'static str, egui::TextureHandle>,
     scales: Option<UvScales>,
+    /// Colour scales fitted to the shown blendshape's map instead of shared by all.
+    pub scale_per_map: bool,
 }
 
 impl Default for UvPanel {
@@ -167,6 +184,7 @@ impl Default for UvPanel {
             textures: HashMap::new(),
             bars: HashMap::new(),
             scales: None,
+            scale_per_map: false,
         }
     }
 }
@@ -209,12 +227,26 @@ impl UvPanel {
             if ui.button("Reset view").clicked() {
                 self.scene_rect = egui::Rect::NOTHING;
             }
+            ui.separator();
+            if ui
+                .checkbox(&mut self.scale_per_map, "Fit the scale to this map")
+                .on_hover_text(
+                    "Off: one scale for all 53 blendshapes, so their maps compare. On: the selected map fills the colour range.",
+                )
+                .changed()
+            {
+                self.textures
+                    .retain(|k, _| !matches!(k.0, UvLayer::DynamicAlbedo | UvLayer::ShapeCorrection));
+            }
         });
         self.layer = Some(layer);
-        let scales = self
-            .scales
-            .get_or_insert_with(|| UvScales::new(model, corrections))
-            .clone();
+        let scales = if self.scale_per_map {
+            UvScales::for_blendshape(model, corrections, blendshape)
+        } else {
+            self.scales
+                .get_or_insert_with(|| UvScales::new(model, corrections))
+                .clone()
+        };
         // Per-blendshape maps are keyed by the blendshape, the frame's albedo by the frame.
         let key = match layer {
             UvLayer::StaticAlbedo => (layer, 0),
