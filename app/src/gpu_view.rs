@@ -69,6 +69,34 @@ impl ViewTarget {
     }
 }
 
+impl ViewTarget {
+    /// Renders `face` with `params` into this target at `size` pixels (one submission) and
+    /// returns the egui id to show.
+    pub fn render(
+        &mut self,
+        rs: &egui_wgpu::RenderState,
+        face: &renderer::FaceRenderer,
+        size: [u32; 2],
+        params: &renderer::FrameParams,
+        label: &str,
+    ) -> egui::TextureId {
+        let (view, id) = self.prepare(rs, size, label);
+        let mut encoder = rs
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        face.render(
+            &rs.device,
+            &rs.queue,
+            &mut encoder,
+            &view,
+            (size[0].max(1), size[1].max(1)),
+            params,
+        );
+        rs.queue.submit([encoder.finish()]);
+        id
+    }
+}
+
 /// The size in whole pixels of the space `ui` has left, at least 16 x 16.
 pub fn available_pixels(ui: &egui::Ui) -> [u32; 2] {
     let available = ui.available_size();

@@ -119,21 +119,12 @@ impl OverlayView {
         let mut params = FrameParams::new(camera);
         params.view = ViewMode::Shaded;
         params.sh_coefficients = sh;
-        let (view, id) = self.target.prepare(rs, size, "input overlay");
-        let mut encoder = rs
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("input overlay"),
-            });
-        gpu.face.render(
-            &rs.device,
-            &rs.queue,
-            &mut encoder,
-            &view,
-            (size[0], size[1]),
+        Ok(Some(self.target.render(
+            rs,
+            &gpu.face,
+            size,
             &params,
-        );
-        rs.queue.submit([encoder.finish()]);
-        Ok(Some(id))
+            "input overlay",
+        )))
     }
 }

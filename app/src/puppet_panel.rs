@@ -232,7 +232,7 @@ pub struct PuppetPanel {
     dragging_point: Option<usize>,
     gpu: Option<PuppetGpu>,
     person_gpu: Option<PersonGpu>,
-    targets: [ViewTarget; 1],
+    target: ViewTarget,
 }
 
 impl Default for PuppetPanel {
@@ -253,7 +253,7 @@ impl Default for PuppetPanel {
             dragging_point: None,
             gpu: None,
             person_gpu: None,
-            targets: Default::default(),
+            target: ViewTarget::default(),
         }
     }
 }
@@ -507,13 +507,7 @@ impl PuppetPanel {
     ) -> Result<Option<egui::TextureId>, String> {
         let weights = session.weights(frame);
         let rotation = session.rotation_deg(frame);
-        let (view, id) = self.targets[0].prepare(rs, size, "puppet view");
-        let mut encoder = rs
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("puppet view"),
-            });
-        match (self.drive, self.person.clone()) {
+        let id = match (self.drive, self.person.clone()) {
             (DriveTarget::Person, Some(person)) => {
                 let key = Arc::as_ptr(&person) as usize;
                 if self.person_gpu.as_ref().is_none_or(|g| g.person != key) {
@@ -543,16 +537,10 @@ impl PuppetPanel {
                 let mut params: FrameParams =
                     frame_params(StudioView::Shaded, &orbit, size[0], size[1]);
                 params.camera = orbit.camera_with_head(rotation, size[0], size[1]);
-                gpu.face.render(
-                    &rs.device,
-                    &rs.queue,
-                    &mut encoder,
-                    &view,
-                    (size[0], size[1]),
-                    &params,
-                );
                 self.shown_weights = weights.0.to_vec();
                 self.shown_pose = None;
+                self.target
+                    .render(rs, &gpu.face, size, &params, "person B view")
             }
             _ => {
                 let Some(p) = self.puppet.as_ref() else {
@@ -589,19 +577,12 @@ impl PuppetPanel {
                     FrameParams::new(p.view.camera(&pose, self.orbit_yaw_deg, size[0], size[1]));
                 params.sh_coefficients = face::sh::studio_light();
                 params.background = [0.11, 0.12, 0.14, 1.0];
-                gpu.face.render(
-                    &rs.device,
-                    &rs.queue,
-                    &mut encoder,
-                    &view,
-                    (size[0], size[1]),
-                    &params,
-                );
                 self.shown_weights = shape_weights;
                 self.shown_pose = Some(pose);
+                self.target
+                    .render(rs, &gpu.face, size, &params, "puppet view")
             }
-        }
-        rs.queue.submit([encoder.finish()]);
+        };
         Ok(Some(id))
     }
 

@@ -885,22 +885,10 @@ impl StudioApp {
                 Err(e) => self.state.error = Some(e.to_string()),
             }
         }
-        let (view, id) = viewport.target.prepare(rs, size, "studio 3D view");
         let params = frame_params(self.state.view, &self.state.orbit, size[0], size[1]);
-        let mut encoder = rs
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("studio 3D view"),
-            });
-        viewport.face.render(
-            &rs.device,
-            &rs.queue,
-            &mut encoder,
-            &view,
-            (size[0], size[1]),
-            &params,
-        );
-        rs.queue.submit([encoder.finish()]);
+        let id = viewport
+            .target
+            .render(rs, &viewport.face, size, &params, "studio 3D view");
         self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
 
         let response = ui.add(
