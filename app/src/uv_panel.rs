@@ -240,13 +240,7 @@ impl UvPanel {
             }
         });
         self.layer = Some(layer);
-        let scales = if self.scale_per_map {
-            UvScales::for_blendshape(model, corrections, blendshape)
-        } else {
-            self.scales
-                .get_or_insert_with(|| UvScales::new(model, corrections))
-                .clone()
-        };
+
         // Per-blendshape maps are keyed by the blendshape, the frame's albedo by the frame.
         let key = match layer {
             UvLayer::StaticAlbedo => (layer, 0),
@@ -259,6 +253,14 @@ impl UvPanel {
                 .retain(|k, _| k.0 != UvLayer::FrameAlbedo || k.1 == frame);
         }
         if let std::collections::hash_map::Entry::Vacant(slot) = self.textures.entry(key) {
+            // Scales are worked out only when a map is drawn, not every frame.
+            let scales = if self.scale_per_map {
+                UvScales::for_blendshape(model, corrections, blendshape)
+            } else {
+                self.scales
+                    .get_or_insert_with(|| UvScales::new(model, corrections))
+                    .clone()
+            };
             match layer_image(
                 model,
                 mean_albedo,
