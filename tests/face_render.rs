@@ -154,3 +154,134 @@ fn overlay_on_an_image() {
         );
     }
 }
+
+/// The renderer's per-frame albedo correction (the mean albedo on the GPU plus the person's
+/// 128 x 128 dR_0 + sum_i w_i A_i dR_i added in the shader) draws the same face as the
+/// albedo of equation (3) computed on the CPU at full resolution and uploaded whole.
+/// Tolerance: the two differ only in where the bilinear interpolations and the 8-bit
+/// rounding happen, so every channel within 3/255 on 99.5 % of the pixels; and the
+/// correction must matter (far more pixels change against the mean albedo).
+#[test]
+fn albedo_correction_matches_equation_3_on_the_cpu() {
+    let f = fixture();
+    let scene = &f.scene;
+    let person = likeness::demo::synthetic_person(&scene.model, scene.albedo.face(), 7);
+    let (weights, _) =
+        parse_weights("jawOpen=0.7,eyeBlinkLeft=1,mouthSmileRight=0.8").expect("weights");
+    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
+    let renderer: &mut OffscreenRenderer = &mut guard;
+    renderer
+        .face
+        .set_overlay_image(&renderer.device, &renderer.queue, None, 1.0)
+        .expect("clear overlay");
+    let view = |r: &mut OffscreenRenderer| {
+        render_view(
+            scene,
+            r,
+            StudioView::Albedo,
+            &weights,
+            &Orbit::default(),
+            SIZE,
+        )
+        .expect("render")
+    };
+    let mean = view(renderer);
+
+    let albedo = scene
+        .model
+        .albedo(scene.albedo.face(), &person, &weights)
+        .expect("equation 3");
+    renderer
+        .face
+        .set_albedo(
+            &renderer.queue,
+            &likeness::demo::layers_with_face(&scene.textures, &albedo),
+        )
+        .expect("albedo");
+    let cpu = view(renderer);
+
+    renderer
+        .face
+        .set_albedo(&renderer.queue, &scene.textures)
+        .expect("mean albedo");
+    let correction = scene
+        .model
+        .albedo_correction(&person, &weights)
+        .expect("correction");
+    renderer
+        .face
+        .set_albedo_correction(
+            &renderer.queue,
+            Some(renderer::AlbedoCorrection {
+                rgb: &correction.data,
+                width: correction.width as u32,
+                height: correction.height as u32,
+                layer: face::albedo::AlbedoLayer::Face.index() as u32,
+            }),
+        )
+        .expect("correction");
+    let gpu = view(renderer);
+    renderer
+        .face
+        .set_albedo_correction(&renderer.queue, None)
+        .expect("clear correction");
+    // Removing the correction gives the mean albedo back.
+    let cleared = view(renderer);
+    drop(guard);
+
+    let within = |a: &image::RgbaImage, b: &image::RgbaImage, tol: u8| {
+        a.pixels()
+            .zip(b.pixels())
+            .filter(|(p, q)| {
+                p.0.iter()
+                    .zip(q.0.iter())
+                    .all(|(x, y)| x.abs_diff(*y) <= tol)
+            })
+            .count() as f64
+            / (a.width() * a.height()) as f64
+    };
+    let agree = within(&cpu, &gpu, 3);
+    assert!(
+        agree >= 0.995,
+        "GPU and CPU equation 3 agree on {:.2} % of the pixels",
+        agree * 100.0
+    );
+    assert_eq!(
+        within(&cleared, &mean, 0),
+        1.0,
+        "clearing the correction restores the mean"
+    );
+    let changed = changed_pixels(&mean, &cpu);
+    assert!(
+        changed > 2000,
+        "the person's albedo changes only {changed} pixels"
+    );
+}
+
+/// Bad corrections are errors, not a corrupted frame.
+#[test]
+fn albedo_correction_rejects_bad_input() {
+    let f = fixture();
+    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
+    let renderer: &mut OffscreenRenderer = &mut guard;
+    let queue = renderer.queue.clone();
+    let mut set = |rgb: &[f32], width, height, layer| {
+        renderer.face.set_albedo_correction(
+            &queue,
+            Some(renderer::AlbedoCorrection {
+                rgb,
+                width,
+                height,
+                layer,
+            }),
+        )
+    };
+    assert!(set(&[0.0; 11], 2, 2, 0).is_err(), "wrong length");
+    assert!(set(&[0.0, 0.0, f32::NAN], 1, 1, 0).is_err(), "NaN");
+    assert!(set(&[0.0; 3], 1, 1, 99).is_err(), "no such layer");
+    assert!(set(&[0.1; 3], 1, 1, 0).is_ok());
+    renderer
+        .face
+        .set_albedo_correction(&queue, None)
+        .expect("clear");
+}

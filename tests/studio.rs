@@ -917,3 +917,47 @@ fn a_saved_session_opens_again_with_its_footage_model_and_tracking() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The 3D views draw only when what they show changes: a paused puppet or face view is not
+/// re-rendered on every UI frame, stepping the clip or turning the view redraws it once,
+/// and the picture still follows the frame.
+#[test]
+fn three_d_views_redraw_only_when_what_they_show_changes() {
+    let mut harness = session_harness();
+    let scene = scene();
+    for panel in ["puppet", "face", "overlay", "person_b"] {
+        likeness::studio_shots::set_up_panel(harness.state_mut(), &scene, panel)
+            .unwrap_or_else(|e| panic!("{panel}: {e:#}"));
+        harness.state_mut().state.playback.playing = false;
+        harness.run_steps(3);
+        assert!(
+            harness.state().state.error.is_none(),
+            "{panel}: {:?}",
+            harness.state().state.error
+        );
+        let before = harness.state().view_renders();
+        let paused = harness.render().expect("render");
+        harness.run_steps(5);
+        assert_eq!(
+            harness.state().view_renders(),
+            before,
+            "{panel}: a paused view is not drawn again"
+        );
+        harness.key_press(egui::Key::ArrowRight);
+        harness.run_steps(3);
+        let after = harness.state().view_renders();
+        assert!(
+            after > before && after <= before + 2,
+            "{panel}: one new frame draws the view once ({before} -> {after})"
+        );
+        let stepped = harness.render().expect("render");
+        assert_ne!(
+            paused.as_raw(),
+            stepped.as_raw(),
+            "{panel}: the next frame shows a different picture"
+        );
+    }
+    assert!(
+        likeness::studio_shots::set_up_panel(harness.state_mut(), &scene, "no such panel").is_err()
+    );
+}

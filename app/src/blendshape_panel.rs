@@ -10,10 +10,10 @@
 use std::sync::Arc;
 
 use face::{BlendshapeWeights, ICT_NAMES, NUM_BLENDSHAPES};
-use renderer::{FaceRenderer, FrameParams, TextureLayers, ViewMode};
+use renderer::{FaceRenderer, FrameParams, ViewMode};
 
 use crate::colormap::colour_bar;
-use crate::gpu_view::{ViewTarget, orbit_input, person_renderer};
+use crate::gpu_view::{ViewTarget, orbit_input, person_renderer, upload_person_albedo};
 use crate::scene::{Orbit, Scene, StudioView, frame_params};
 use crate::studio_session::StudioSession;
 
@@ -34,8 +34,7 @@ struct PersonalGpu {
     /// The blendshape whose correction magnitudes are uploaded as vertex scalars, and
     /// whose mask is uploaded.
     uploaded: Option<usize>,
-    /// (blendshape, weight in 1/20 steps) of the uploaded albedo: equation (3) is
-    /// recomputed on the CPU, so only when the shown value visibly changes.
+    /// (blendshape, weight bits) of the uploaded albedo correction (equation 3).
     albedo_for: Option<(usize, u32)>,
 }
 
@@ -50,7 +49,7 @@ pub struct BlendshapePanel {
     /// The third view shows A_i instead of the correction heatmap.
     pub show_mask: bool,
     gpu: Option<PersonalGpu>,
-    targets: [ViewTarget; 3],
+    pub(crate) targets: [ViewTarget; 3],
     bar: Option<egui::TextureHandle>,
 }
 
@@ -222,11 +221,6 @@ impl BlendshapePanel {
             ..base.clone()
         };
         let mut ids = [egui::TextureId::default(); 3];
-        let mut encoder = rs
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("blendshape views"),
-            });
         for (k, (face, params)) in [
             (&*template_face, &base),
             (&gpu.face, &base),
@@ -235,18 +229,8 @@ impl BlendshapePanel {
         .into_iter()
         .enumerate()
         {
-            let (view, id) = self.targets[k].prepare(rs, size, "blendshape view");
-            face.render(
-                &rs.device,
-                &rs.queue,
-                &mut encoder,
-                &view,
-                (size[0], size[1]),
-                params,
-            );
-            ids[k] = id;
+            ids[k] = self.targets[k].render(rs, face, size, params, "blendshape view");
         }
-        rs.queue.submit([encoder.finish()]);
 
         ui.horizontal(|ui| {
             for (k, id) in ids.into_iter().enumerate() {
@@ -304,19 +288,13 @@ impl BlendshapePanel {
                 .map_err(|e| e.to_string())?;
             gpu.uploaded = Some(i);
         }
-        let step = (self.preview_weight.clamp(0.0, 1.0) * 20.0).round() as u32;
-        if gpu.albedo_for != Some((i, step)) {
+        let weight = self.preview_weight.clamp(0.0, 1.0);
+        if gpu.albedo_for != Some((i, weight.to_bits())) {
             let mut weights = BlendshapeWeights::default();
-            weights.0[i] = step as f32 / 20.0;
-            let albedo = scene
-                .model
-                .albedo(scene.albedo.face(), &session.corrections, &weights)
+            weights.0[i] = weight;
+            upload_person_albedo(rs, &mut gpu.face, scene, &session.corrections, &weights)
                 .map_err(|e| format!("personal albedo: {e}"))?;
-            let layers: TextureLayers = crate::demo::layers_with_face(&scene.textures, &albedo);
-            gpu.face
-                .set_albedo(&rs.queue, &layers)
-                .map_err(|e| e.to_string())?;
-            gpu.albedo_for = Some((i, step));
+            gpu.albedo_for = Some((i, weight.to_bits()));
         }
         Ok(())
     }

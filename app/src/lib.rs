@@ -10,6 +10,7 @@ pub mod colormap;
 pub mod demo;
 pub mod fixture;
 pub mod footage;
+pub mod fps_probe;
 pub mod gpu_view;
 pub mod headless;
 pub mod motion_panel;

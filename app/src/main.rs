@@ -34,6 +34,21 @@ enum Command {
         /// Where the views go when no display is available.
         #[arg(long, default_value = "likeness-demo")]
         out: PathBuf,
+        /// Measure the window's frame rate: play the demo on --panel for this many seconds
+        /// (after a 3 s warm-up), print the frame times and close.
+        #[arg(long, value_name = "SECONDS")]
+        measure_fps: Option<f64>,
+        /// The panel --measure-fps plays: overlay, face, puppet, person_b, or any panel of
+        /// `demo --headless` (input, blendshapes, static_albedo, ...).
+        #[arg(long, default_value = "puppet")]
+        panel: String,
+        /// Window size in points, WIDTHxHEIGHT.
+        #[arg(long, default_value = "1280x800")]
+        size: String,
+        /// Wait for the display's refresh (vsync); off by default with --measure-fps, so it
+        /// measures what the studio can sustain rather than the refresh rate.
+        #[arg(long)]
+        vsync: Option<bool>,
     },
     /// Write the demo's views to PNG files without opening a window.
     Demo {
@@ -114,6 +129,10 @@ enum Command {
         /// Frames timed per panel.
         #[arg(long, default_value_t = 120)]
         frames: usize,
+        /// Comma-separated panels (any of `demo --headless`'s: input, overlay, face,
+        /// blendshapes, ..., puppet, person_b), or `all`.
+        #[arg(long, default_value = "overlay,face,puppet,person_b")]
+        panels: String,
     },
     /// Render one view of the face to a PNG file without a window.
     Screenshot {
@@ -260,6 +279,10 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let command = cli.command.unwrap_or(Command::Studio {
         out: "likeness-demo".into(),
+        measure_fps: None,
+        panel: "puppet".into(),
+        size: "1280x800".into(),
+        vsync: None,
     });
     let load_scene = || Scene::load(cli.facemodel.as_deref());
     match command {
@@ -311,14 +334,37 @@ fn main() -> Result<()> {
                 println!("wrote {}", path.display());
             }
         }
-        Command::Studio { out } if !has_display() => {
+        Command::Studio {
+            measure_fps: Some(_),
+            ..
+        } if !has_display() => {
+            bail!("--measure-fps needs a display (for example Xvfb with DISPLAY set)")
+        }
+        Command::Studio { out, .. } if !has_display() => {
             eprintln!(
                 "No display found: writing the studio's demo views to {} instead.",
                 out.display()
             );
             report_written(&write_all_demo_views(load_scene()?, &out)?);
         }
-        Command::Studio { .. } => run_studio(load_scene()?)?,
+        Command::Studio {
+            measure_fps,
+            panel,
+            size,
+            vsync,
+            ..
+        } => {
+            let size = parse_size(&size)?;
+            let measure = match measure_fps {
+                Some(secs) if secs.is_finite() && (0.5..=3600.0).contains(&secs) => {
+                    Some((panel, secs))
+                }
+                Some(secs) => bail!("--measure-fps {secs} is outside 0.5..3600 seconds"),
+                None => None,
+            };
+            let vsync = vsync.unwrap_or(measure.is_none());
+            run_studio(load_scene()?, size, vsync, measure)?
+        }
         Command::Demo { out, .. } => {
             report_written(&write_all_demo_views(load_scene()?, &out)?);
         }
@@ -326,24 +372,57 @@ fn main() -> Result<()> {
             let path = likeness::fixture::export_fixture(&load_scene()?.model, &out)?;
             println!("wrote {}", path.display());
         }
-        Command::BenchStudio { size, frames } => {
+        Command::BenchStudio {
+            size,
+            frames,
+            panels,
+        } => {
             let (w, h) = parse_size(&size)?;
+            let panels: Vec<String> = if panels.trim() == "all" {
+                likeness::studio_shots::panel_file_names()
+                    .iter()
+                    .filter_map(|f| f.strip_prefix("panel_")?.strip_suffix(".png"))
+                    .map(str::to_owned)
+                    .collect()
+            } else {
+                panels.split(',').map(|p| p.trim().to_owned()).collect()
+            };
             let scene = load_scene()?;
             let session = demo_session(&scene)?;
-            let rows =
-                likeness::studio_shots::bench_studio(Arc::new(scene), session, [w, h], frames)?;
-            println!("studio at {w}x{h}, demo clip playing, {frames} frames per panel");
+            let rows = likeness::studio_shots::bench_studio(
+                Arc::new(scene),
+                session,
+                [w, h],
+                frames,
+                &panels,
+            )?;
             println!(
-                "{:<40} {:>9} {:>9} {:>7}",
-                "panel", "mean ms", "p95 ms", "fps"
+                "studio at {w}x{h}, demo clip playing at a 60 Hz step, {frames} frames per panel"
+            );
+            println!(
+                "{:<24} {:>8} {:>8} {:>6} {:>7} {:>9} {:>11} {:>9} {:>10}",
+                "panel",
+                "mean ms",
+                "p95 ms",
+                "fps",
+                "ui ms",
+                "3D ms",
+                "paint+rb ms",
+                "3D frames",
+                "triangles"
             );
             for r in &rows {
                 println!(
-                    "{:<40} {:>9.2} {:>9.2} {:>7.1}",
+                    "{:<24} {:>8.2} {:>8.2} {:>6.1} {:>7.2} {:>9.2} {:>11.2} {:>9} {:>10}",
                     r.panel,
                     r.mean_ms,
                     r.p95_ms,
-                    r.fps()
+                    r.fps(),
+                    r.ui_ms,
+                    r.views_ms,
+                    r.paint_ms,
+                    format!("{}/{}", r.frames_with_3d, r.frames),
+                    r.triangles
                 );
             }
         }
@@ -414,30 +493,97 @@ fn write_all_demo_views(scene: Scene, out: &std::path::Path) -> Result<Vec<PathB
     Ok(written)
 }
 
-fn run_studio(scene: Scene) -> Result<()> {
+/// Opens the studio window on the demo. With `measure` (panel, seconds) the window plays
+/// that panel, prints its frame times and closes.
+fn run_studio(
+    scene: Scene,
+    size: (u32, u32),
+    vsync: bool,
+    measure: Option<(String, f64)>,
+) -> Result<()> {
     let session = demo_session(&scene);
+    if measure.is_some() && session.is_err() {
+        return session.map(|_| ()).context("the demo could not be built");
+    }
     let scene = Arc::new(scene);
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Wgpu,
+        wgpu_options: egui_wgpu::WgpuConfiguration {
+            surface: egui_wgpu::SurfaceConfig {
+                present_mode: if vsync {
+                    wgpu::PresentMode::AutoVsync
+                } else {
+                    wgpu::PresentMode::AutoNoVsync
+                },
+                ..egui_wgpu::WgpuConfiguration::default().surface
+            },
+            ..Default::default()
+        },
         viewport: egui::ViewportBuilder::default()
             .with_title("Likeness studio")
-            .with_inner_size([1280.0, 800.0]),
+            .with_inner_size([size.0 as f32, size.1 as f32]),
+        dithering: likeness::studio_shots::window_renderer_options().dithering,
         ..Default::default()
     };
+    let report = Arc::new(std::sync::Mutex::new(None));
+    let report_slot = report.clone();
+    let setup_error = Arc::new(std::sync::Mutex::new(None::<String>));
+    let setup_slot = setup_error.clone();
     eframe::run_native(
         "Likeness studio",
         options,
         Box::new(move |cc| {
-            let app = StudioApp::new(cc, scene);
-            Ok(Box::new(match session {
+            let app = StudioApp::new(cc, scene.clone());
+            let mut app = match session {
                 Ok(session) => app.with_session(session),
                 Err(e) => {
                     let mut app = app;
                     app.state.error = Some(format!("the demo could not be built: {e:#}"));
                     app
                 }
-            }))
+            };
+            app.window_cleared_to_panel_colour = true;
+            if let Some((panel, secs)) = measure {
+                if let Err(e) = likeness::studio_shots::set_up_panel(&mut app, &scene, &panel) {
+                    if let Ok(mut slot) = setup_slot.lock() {
+                        *slot = Some(format!("{e:#}"));
+                    }
+                    cc.egui_ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+                }
+                app.state.playback.playing = true;
+                let mut probe = likeness::fps_probe::FpsProbe::new(
+                    &panel,
+                    std::time::Duration::from_secs(3),
+                    std::time::Duration::from_secs_f64(secs),
+                );
+                probe.report = report_slot;
+                app.fps_probe = Some(probe);
+            }
+            Ok(Box::new(app))
         }),
     )
-    .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))
+    .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))?;
+    if let Some(e) = setup_error.lock().ok().and_then(|mut e| e.take()) {
+        bail!(e);
+    }
+    if let Some(r) = report.lock().ok().and_then(|mut r| r.take()) {
+        println!(
+            "studio window {}x{} (vsync {}), panel {}, demo clip playing: {} frames in {:.1} s",
+            size.0,
+            size.1,
+            if vsync { "on" } else { "off" },
+            r.panel,
+            r.frames,
+            r.seconds
+        );
+        println!(
+            "fps {:.1}; frame interval mean {:.2} ms, median {:.2} ms, p95 {:.2} ms, worst {:.2} ms",
+            r.fps(),
+            r.mean_ms,
+            r.median_ms,
+            r.p95_ms,
+            r.worst_ms
+        );
+    }
+    Ok(())
 }

@@ -31,7 +31,7 @@ pub struct OverlayView {
     /// Where the Input panel last drew the frame, in points (tests map pixels through it).
     pub frame_rect: Option<egui::Rect>,
     gpu: Option<OverlayGpu>,
-    target: ViewTarget,
+    pub(crate) target: ViewTarget,
 }
 
 impl Default for OverlayView {

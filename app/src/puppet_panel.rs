@@ -232,7 +232,7 @@ pub struct PuppetPanel {
     dragging_point: Option<usize>,
     gpu: Option<PuppetGpu>,
     person_gpu: Option<PersonGpu>,
-    target: ViewTarget,
+    pub(crate) target: ViewTarget,
 }
 
 impl Default for PuppetPanel {

@@ -113,6 +113,14 @@ pub struct StudioApp {
     job: Option<FootageJob>,
     /// The autosave of the last processed session, written on its own thread.
     autosave: Option<mpsc::Receiver<Result<PathBuf, String>>>,
+    /// `studio --measure-fps`: times the window's frames, then closes it.
+    pub fps_probe: Option<crate::fps_probe::FpsProbe>,
+    /// The window is cleared to the panel colour before egui paints ([`eframe::App::clear_color`]),
+    /// so the studio paints no background of its own. On a software rasteriser every
+    /// full-window fill costs several milliseconds, so the native window saves one per
+    /// frame; a headless renderer (kittest clears to transparent) leaves this off and gets
+    /// one background rectangle instead of one fill per panel.
+    pub window_cleared_to_panel_colour: bool,
 }
 
 impl StudioApp {
@@ -133,6 +141,8 @@ impl StudioApp {
             autosave_path: autosave_path(),
             job: None,
             autosave: None,
+            fps_probe: None,
+            window_cleared_to_panel_colour: false,
         };
         if let Some(storage) = cc.storage {
             let settings = eframe::get_value::<Settings>(storage, SETTINGS_KEY)
@@ -518,6 +528,20 @@ impl StudioApp {
             Some(path) if path != self.autosave_path => self.save_session(&path),
             _ => self.save_session_dialog(),
         }
+    }
+
+    /// How many times the studio's 3D views have been drawn (each [`ViewTarget::render`]
+    /// that did not reuse its last picture).
+    pub fn view_renders(&self) -> u64 {
+        self.viewport.as_ref().map_or(0, |v| v.target.renders)
+            + self.overlay.target.renders
+            + self.puppet_panel.target.renders
+            + self
+                .blendshape_panel
+                .targets
+                .iter()
+                .map(|t| t.renders)
+                .sum::<u64>()
     }
 
     pub fn session(&self) -> Option<&Arc<StudioSession>> {
@@ -929,13 +953,38 @@ fn session_dialog() -> rfd::FileDialog {
     rfd::FileDialog::new().add_filter("Likeness session", &["likeness"])
 }
 
+/// The panels' frames without their fill: the studio's background is painted once for the
+/// whole window (see `StudioApp::window_cleared_to_panel_colour`), not once per panel.
+fn side_frame(ui: &egui::Ui) -> egui::Frame {
+    egui::Frame::side_top_panel(ui.style()).fill(egui::Color32::TRANSPARENT)
+}
+
+fn central_frame(ui: &egui::Ui) -> egui::Frame {
+    egui::Frame::central_panel(ui.style()).fill(egui::Color32::TRANSPARENT)
+}
+
 impl eframe::App for StudioApp {
+    fn clear_color(&self, visuals: &egui::Visuals) -> [f32; 4] {
+        visuals.panel_fill.to_normalized_gamma_f32()
+    }
+
     fn save(&mut self, storage: &mut dyn eframe::Storage) {
         eframe::set_value(storage, SETTINGS_KEY, &self.current_settings());
     }
 
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         self.state.frame_interval_ms = ui.input(|i| i.unstable_dt) * 1000.0;
+        if !self.window_cleared_to_panel_colour {
+            let rect = ui.ctx().content_rect();
+            ui.painter().rect_filled(rect, 0.0, ui.visuals().panel_fill);
+        }
+        if let Some(probe) = &mut self.fps_probe {
+            ui.ctx().request_repaint();
+            if probe.frame(Instant::now()) {
+                self.fps_probe = None;
+                ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
+            }
+        }
         self.poll_job();
         self.poll_autosave();
         self.shortcuts(ui.ctx());
@@ -958,8 +1007,25 @@ impl eframe::App for StudioApp {
             self.state.weights = demo_weights(self.state.demo_time_secs);
             ui.ctx().request_repaint();
         }
-        egui::Panel::top("toolbar").show(ui, |ui| self.toolbar_ui(ui));
+        // The panels are unfilled (see `side_frame`), but egui reads the background colour
+        // from the frames of the enclosing UIs (scroll areas fade into it): this scope
+        // carries the panel colour without painting it.
+        let background = egui::UiStackInfo::new(egui::UiKind::Frame)
+            .with_frame(egui::Frame::NONE.fill(ui.visuals().panel_fill));
+        ui.scope_builder(egui::UiBuilder::new().ui_stack_info(background), |ui| {
+            self.panels_ui(ui, frame)
+        });
+    }
+}
+
+impl StudioApp {
+    /// The toolbar, side panel, bottom bars and the current main panel.
+    fn panels_ui(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
+        egui::Panel::top("toolbar")
+            .frame(side_frame(ui))
+            .show(ui, |ui| self.toolbar_ui(ui));
         egui::Panel::left("blendshapes")
+            .frame(side_frame(ui))
             .default_size(330.0)
             .show(ui, |ui| match self.session.clone() {
                 Some(session) if self.state.panel == Panel::Blendshapes => {
@@ -973,61 +1039,80 @@ impl eframe::App for StudioApp {
                 _ => self.blendshape_list_ui(ui),
             });
         if self.job.is_some() {
-            egui::Panel::bottom("footage job").show(ui, |ui| self.job_ui(ui));
+            egui::Panel::bottom("footage job")
+                .frame(side_frame(ui))
+                .show(ui, |ui| self.job_ui(ui));
         }
         if let Some(status) = self.state.status.clone() {
-            egui::Panel::bottom("status").show(ui, |ui| {
-                ui.horizontal(|ui| {
-                    ui.label(&status);
-                    if ui.button("OK").clicked() {
-                        self.state.status = None;
-                    }
+            egui::Panel::bottom("status")
+                .frame(side_frame(ui))
+                .show(ui, |ui| {
+                    ui.horizontal(|ui| {
+                        ui.label(&status);
+                        if ui.button("OK").clicked() {
+                            self.state.status = None;
+                        }
+                    });
                 });
-            });
         }
         if let Some(error) = self.state.error.clone() {
-            egui::Panel::bottom("errors").show(ui, |ui| {
-                ui.horizontal(|ui| {
-                    ui.colored_label(egui::Color32::LIGHT_RED, &error);
-                    if ui.button("Dismiss").clicked() {
-                        self.state.error = None;
-                    }
+            egui::Panel::bottom("errors")
+                .frame(side_frame(ui))
+                .show(ui, |ui| {
+                    ui.horizontal(|ui| {
+                        ui.colored_label(egui::Color32::LIGHT_RED, &error);
+                        if ui.button("Dismiss").clicked() {
+                            self.state.error = None;
+                        }
+                    });
                 });
-            });
         }
         if let Some(session) = self.session.clone() {
             egui::Panel::bottom("timeline")
+                .frame(side_frame(ui))
                 .show(ui, |ui| timeline_ui(ui, &mut self.state.playback, &session));
         }
         match self.state.panel {
             Panel::Input if self.session.is_some() => {
-                egui::CentralPanel::default().show(ui, |ui| self.input_ui(ui, frame));
+                egui::CentralPanel::default()
+                    .frame(central_frame(ui))
+                    .show(ui, |ui| self.input_ui(ui, frame));
             }
             Panel::Blendshapes if self.session.is_some() => {
                 let dt = f64::from(ui.input(|i| i.stable_dt));
                 self.blendshape_panel.advance(dt);
-                egui::CentralPanel::default().show(ui, |ui| self.blendshapes_ui(ui, frame));
+                egui::CentralPanel::default()
+                    .frame(central_frame(ui))
+                    .show(ui, |ui| self.blendshapes_ui(ui, frame));
             }
             Panel::Puppet if self.session.is_some() => {
-                egui::CentralPanel::default().show(ui, |ui| self.puppet_ui(ui, frame));
+                egui::CentralPanel::default()
+                    .frame(central_frame(ui))
+                    .show(ui, |ui| self.puppet_ui(ui, frame));
             }
             Panel::Maps if self.session.is_some() => {
-                egui::CentralPanel::default().show(ui, |ui| self.maps_ui(ui));
+                egui::CentralPanel::default()
+                    .frame(central_frame(ui))
+                    .show(ui, |ui| self.maps_ui(ui));
             }
             Panel::Motion => {
                 if let Some(session) = self.session.clone() {
-                    egui::CentralPanel::default().show(ui, |ui| {
-                        let frame = self.state.playback.frame;
-                        if let Some(k) = self.motion_panel.ui(ui, &session, frame) {
-                            self.state
-                                .playback
-                                .step(k as isize - frame as isize, session.frame_count());
-                        }
-                    });
+                    egui::CentralPanel::default()
+                        .frame(central_frame(ui))
+                        .show(ui, |ui| {
+                            let frame = self.state.playback.frame;
+                            if let Some(k) = self.motion_panel.ui(ui, &session, frame) {
+                                self.state
+                                    .playback
+                                    .step(k as isize - frame as isize, session.frame_count());
+                            }
+                        });
                 }
             }
             _ => {
-                egui::CentralPanel::default().show(ui, |ui| self.viewport_ui(ui, frame));
+                egui::CentralPanel::default()
+                    .frame(central_frame(ui))
+                    .show(ui, |ui| self.viewport_ui(ui, frame));
             }
         }
     }

@@ -127,6 +127,14 @@ const SHOTS: &[Shot] = &[
 /// egui-wgpu on the preferred software or hardware adapter, created here rather than by
 /// the harness's `wgpu()` so a machine without any adapter gets an error, not a panic.
 fn headless_renderer() -> Result<WgpuTestRenderer> {
+    Ok(WgpuTestRenderer::from_render_state(headless_render_state(
+        egui_wgpu::RendererOptions::PREDICTABLE,
+    )?))
+}
+
+/// egui-wgpu's state on the preferred adapter with `options` (kittest's predictable
+/// filtering for written panels, the window's defaults for the benchmark).
+fn headless_render_state(options: egui_wgpu::RendererOptions) -> Result<egui_wgpu::RenderState> {
     let setup = egui_kittest::wgpu::default_wgpu_setup();
     let instance = pollster::block_on(setup.new_instance());
     let render_state = pollster::block_on(egui_wgpu::RenderState::create(
@@ -136,14 +144,24 @@ fn headless_renderer() -> Result<WgpuTestRenderer> {
         },
         &instance,
         None,
-        egui_wgpu::RendererOptions::PREDICTABLE,
+        options,
     ))
     .map_err(|e| {
         anyhow!(
             "no GPU adapter for drawing the studio's panels ({e}; on Debian install mesa-vulkan-drivers for lavapipe)"
         )
     })?;
-    Ok(WgpuTestRenderer::from_render_state(render_state))
+    Ok(render_state)
+}
+
+/// Sets `app` up as for the written panel `name` (see [`panel_file_names`]; "overlay",
+/// "face", "puppet" and "person_b" are the live ones).
+pub fn set_up_panel(app: &mut StudioApp, scene: &Scene, name: &str) -> Result<()> {
+    let shot = SHOTS.iter().find(|s| s.name == name).ok_or_else(|| {
+        let names: Vec<&str> = SHOTS.iter().map(|s| s.name).collect();
+        anyhow!("no panel `{name}`; the panels are {}", names.join(", "))
+    })?;
+    (shot.setup)(app, scene)
 }
 
 /// The names of the files [`write_studio_panels`] writes, in order.
@@ -206,19 +224,37 @@ pub fn write_studio_panels(
     Ok(written)
 }
 
-/// The panels [`bench_studio`] times: the ones that render 3D views every frame while the
+/// The panels [`bench_studio`] times by default: the ones that render 3D views while the
 /// clip plays, set up as for the written panels.
-const BENCH_PANELS: [&str; 4] = ["overlay", "face", "puppet", "person_b"];
+pub const LIVE_PANELS: [&str; 4] = ["overlay", "face", "puppet", "person_b"];
+
+/// The renderer options of the studio's window (see `run_studio` in main.rs): eframe's
+/// defaults without dithering.
+pub fn window_renderer_options() -> egui_wgpu::RendererOptions {
+    egui_wgpu::RendererOptions {
+        dithering: false,
+        ..Default::default()
+    }
+}
 
 /// One line of [`bench_studio`]'s table.
 #[derive(Clone, Debug)]
 pub struct BenchRow {
-    pub panel: &'static str,
+    pub panel: String,
     pub frames: usize,
-    /// Mean and 95th percentile time of one studio frame (UI, 3D views, egui's paint and
-    /// the read-back of the picture), milliseconds.
+    /// Mean and 95th percentile time of one studio frame (all the parts below),
+    /// milliseconds.
     pub mean_ms: f64,
     pub p95_ms: f64,
+    /// Mean of the parts: the app's UI code (which records and submits the 3D views), the
+    /// wait for those 3D views on the device, and egui's tessellation, paint and read-back.
+    pub ui_ms: f64,
+    pub views_ms: f64,
+    pub paint_ms: f64,
+    /// How many frames rendered at least one 3D view (the rest reused the last picture).
+    pub frames_with_3d: usize,
+    /// egui triangles of the last frame.
+    pub triangles: usize,
 }
 
 impl BenchRow {
@@ -227,33 +263,37 @@ impl BenchRow {
     }
 }
 
-/// Times the studio playing `session` at `size` pixels on each live panel, one after the
-/// other in one process: every frame runs the whole UI, renders the 3D views and paints
-/// the window through egui-wgpu, then reads the picture back (which a window does not do,
-/// so the numbers are an upper bound on the cost of a frame).
+/// Times the studio playing `session` at `size` pixels on each of `panels`, one after the
+/// other in one process, as a 60 Hz display would (each step advances 1/60 s of the clip):
+/// every frame runs the whole UI, waits for the 3D views it rendered, then tessellates and
+/// paints the window through egui-wgpu with the window's options and reads the picture
+/// back. A window presents instead of reading back; `studio --measure-fps` measures that.
 pub fn bench_studio(
     scene: Arc<Scene>,
     session: Arc<StudioSession>,
     size: [u32; 2],
     frames: usize,
+    panels: &[String],
 ) -> Result<Vec<BenchRow>> {
     if session.frame_count() == 0 {
         anyhow::bail!("the session has no frames to play");
     }
+    let render_state = headless_render_state(window_renderer_options())?;
+    let device = render_state.device.clone();
     let app_scene = scene.clone();
     let mut harness = Harness::builder()
         .with_size(egui::vec2(size[0] as f32, size[1] as f32))
         .with_pixels_per_point(1.0)
-        .renderer(headless_renderer()?)
+        .with_step_dt(1.0 / 60.0)
+        .renderer(WgpuTestRenderer::from_render_state(render_state))
         .build_eframe(move |cc| {
             let mut app = StudioApp::new(cc, app_scene).with_session(session);
             app.state.show_timings = false;
             app
         });
     let mut rows = Vec::new();
-    for shot in SHOTS.iter().filter(|s| BENCH_PANELS.contains(&s.name)) {
-        let panel = shot.name;
-        (shot.setup)(harness.state_mut(), &scene)?;
+    for panel in panels {
+        set_up_panel(harness.state_mut(), &scene, panel)?;
         harness.state_mut().state.playback.playing = true;
         // Warm-up: the first frames upload textures and build pipelines.
         for _ in 0..5 {
@@ -261,23 +301,52 @@ pub fn bench_studio(
             harness.render().map_err(|e| anyhow!("{panel}: {e}"))?;
         }
         let mut times = Vec::with_capacity(frames);
+        let (mut ui_ms, mut views_ms, mut paint_ms) = (0.0, 0.0, 0.0);
+        let mut frames_with_3d = 0;
+        let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1000.0;
         for _ in 0..frames.max(1) {
+            let renders_before = harness.state().view_renders();
             let started = std::time::Instant::now();
             harness.step();
+            let ui = ms(started);
+            device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| anyhow!("{panel}: {e}"))?;
+            let views = ms(started) - ui;
             harness.render().map_err(|e| anyhow!("{panel}: {e}"))?;
-            times.push(started.elapsed().as_secs_f64() * 1000.0);
+            let total = ms(started);
+            times.push(total);
+            ui_ms += ui;
+            views_ms += views;
+            paint_ms += total - ui - views;
+            if harness.state().view_renders() != renders_before {
+                frames_with_3d += 1;
+            }
         }
         if let Some(error) = harness.state().state.error.clone() {
             anyhow::bail!("{panel}: {error}");
         }
+        let triangles = harness
+            .ctx
+            .tessellate(harness.output().shapes.clone(), 1.0)
+            .iter()
+            .map(|p| match &p.primitive {
+                egui::epaint::Primitive::Mesh(m) => m.indices.len() / 3,
+                egui::epaint::Primitive::Callback(_) => 0,
+            })
+            .sum();
+        let n = times.len() as f64;
         times.sort_by(f64::total_cmp);
-        let mean_ms = times.iter().sum::<f64>() / times.len() as f64;
-        let p95_ms = times[((times.len() as f64 * 0.95) as usize).min(times.len() - 1)];
         rows.push(BenchRow {
-            panel,
+            panel: panel.clone(),
             frames: times.len(),
-            mean_ms,
-            p95_ms,
+            mean_ms: times.iter().sum::<f64>() / n,
+            p95_ms: times[((n * 0.95) as usize).min(times.len() - 1)],
+            ui_ms: ui_ms / n,
+            views_ms: views_ms / n,
+            paint_ms: paint_ms / n,
+            frames_with_3d,
+            triangles,
         });
     }
     Ok(rows)

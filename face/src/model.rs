@@ -97,16 +97,22 @@ impl PersonalCorrections {
 
     /// Checks counts, sizes and finiteness, naming the first bad map.
     pub fn validate(&self) -> Result<()> {
-        let check = |name: String, m: &UvMap| -> Result<()> {
+        // The name is built only for an error: this runs on every frame a renderer's albedo
+        // follows the weights.
+        let check = |name: &dyn Fn() -> String, m: &UvMap| -> Result<()> {
             if m.width != CORRECTION_SIZE || m.height != CORRECTION_SIZE || m.channels != 3 {
                 return Err(FaceError::InvalidInput(format!(
-                    "{name} is {}x{}x{}, expected {CORRECTION_SIZE}x{CORRECTION_SIZE}x3",
-                    m.width, m.height, m.channels
+                    "{} is {}x{}x{}, expected {CORRECTION_SIZE}x{CORRECTION_SIZE}x3",
+                    name(),
+                    m.width,
+                    m.height,
+                    m.channels
                 )));
             }
             if !m.is_finite() {
                 return Err(FaceError::InvalidInput(format!(
-                    "{name} has NaN or infinite values"
+                    "{} has NaN or infinite values",
+                    name()
                 )));
             }
             Ok(())
@@ -120,14 +126,14 @@ impl PersonalCorrections {
                 self.dynamic_albedo.len()
             )));
         }
-        check("dS_0".into(), &self.identity_shape)?;
-        check("dR_0".into(), &self.static_albedo)?;
+        check(&|| "dS_0".into(), &self.identity_shape)?;
+        check(&|| "dR_0".into(), &self.static_albedo)?;
         for (name, (shape, albedo)) in ICT_NAMES
             .iter()
             .zip(self.expression_shapes.iter().zip(&self.dynamic_albedo))
         {
-            check(format!("dS of {name}"), shape)?;
-            check(format!("dR of {name}"), albedo)?;
+            check(&|| format!("dS of {name}"), shape)?;
+            check(&|| format!("dR of {name}"), albedo)?;
         }
         Ok(())
     }
@@ -196,11 +202,10 @@ impl FaceModel {
         }
     }
 
-    /// Equation (3): R = R_0^t + dR_0 + sum_i w_i A_i dR_i, on the grid of `mean_albedo`
-    /// (R_0^t, any size, 3 channels).
-    pub fn albedo(
+    /// The person's part of equation (3), dR_0 + sum_i w_i A_i dR_i, on the corrections'
+    /// own grid (128 x 128): what a renderer adds to R_0^t per frame.
+    pub fn albedo_correction(
         &self,
-        mean_albedo: &UvMap,
         corrections: &PersonalCorrections,
         weights: &BlendshapeWeights,
     ) -> Result<UvMap> {
@@ -212,13 +217,30 @@ impl FaceModel {
             }
             let mask = self.masks.mask(i);
             let dynamic = &corrections.dynamic_albedo[i];
-            for (t, out) in correction.data.chunks_exact_mut(3).enumerate() {
-                let a = mask.data[t];
-                for (o, d) in out.iter_mut().zip(&dynamic.data[t * 3..t * 3 + 3]) {
-                    *o += w * a * d;
+            for ((out, d), &a) in correction
+                .data
+                .chunks_exact_mut(3)
+                .zip(dynamic.data.chunks_exact(3))
+                .zip(&mask.data)
+            {
+                let wa = w * a;
+                for (o, d) in out.iter_mut().zip(d) {
+                    *o += wa * d;
                 }
             }
         }
+        Ok(correction)
+    }
+
+    /// Equation (3): R = R_0^t + dR_0 + sum_i w_i A_i dR_i, on the grid of `mean_albedo`
+    /// (R_0^t, any size, 3 channels).
+    pub fn albedo(
+        &self,
+        mean_albedo: &UvMap,
+        corrections: &PersonalCorrections,
+        weights: &BlendshapeWeights,
+    ) -> Result<UvMap> {
+        let correction = self.albedo_correction(corrections, weights)?;
         let mut albedo = mean_albedo.clone();
         for y in 0..albedo.height {
             for x in 0..albedo.width {

@@ -30,6 +30,7 @@ const MODE_VERTEX_HEATMAP: u32 = 6u;
 
 const FLAG_HAS_MASK: u32 = 1u;
 const FLAG_HAS_SCALARS: u32 = 2u;
+const FLAG_HAS_CORRECTION: u32 = 4u;
 
 struct Frame {
     view_from_model: mat4x4<f32>,
@@ -42,7 +43,7 @@ struct Frame {
     // x: heatmap max, y: face opacity, z: viewport width px, w: viewport height px
     params: vec4<f32>,
     // x: blendshape count K, y: scalar texture width (= data texture width),
-    // z: log2 of the data texture width
+    // z: log2 of the data texture width, w: the albedo layer correction_tex is added to
     counts: vec4<u32>,
 }
 
@@ -63,6 +64,9 @@ struct Weights {
 // Output of fs_blend: texel v is the blended position of vertex v, texel V + v its unit
 // normal (same width as data_tex). A 1x1 dummy on the per-vertex path.
 @group(0) @binding(8) var blended_tex: texture_2d<f32>;
+// RGB added to the albedo of layer frame.counts.w (a person's dynamic albedo, equation 3,
+// without re-uploading the whole albedo); 1x1 and unused without FLAG_HAS_CORRECTION.
+@group(0) @binding(9) var correction_tex: texture_2d<f32>;
 
 // Texel coordinates of linear index i in the data, blended and scalar textures, which share
 // one power-of-two width. Shift and mask, not % and /: software rasterisers (lavapipe) run
@@ -224,10 +228,14 @@ fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
     // OBJ uv has its origin bottom-left; textures are stored top row first.
     let tex_uv = vec2<f32>(in.uv.x, 1.0 - in.uv.y);
     // Sampled unconditionally: implicit-derivative sampling must stay in uniform control flow.
-    let albedo = textureSample(albedo_tex, lin_sampler, tex_uv, in.layer).rgb;
+    var albedo = textureSample(albedo_tex, lin_sampler, tex_uv, in.layer).rgb;
     let mask = textureSample(mask_tex, lin_sampler, tex_uv).r;
+    let correction = textureSample(correction_tex, lin_sampler, tex_uv).rgb;
     let mode = frame.mode.x;
     let flags = frame.mode.y;
+    if (flags & FLAG_HAS_CORRECTION) != 0u && in.layer == frame.counts.w {
+        albedo = clamp(albedo + correction, vec3<f32>(0.0), vec3<f32>(1.0));
+    }
     var rgb: vec3<f32>;
     switch mode {
         case MODE_ALBEDO: {

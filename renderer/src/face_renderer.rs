@@ -11,6 +11,7 @@ const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const BLENDED_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const FLAG_HAS_MASK: u32 = 1;
 const FLAG_HAS_SCALARS: u32 = 2;
+const FLAG_HAS_CORRECTION: u32 = 4;
 
 /// Mirrors `Frame` in `face.wgsl`.
 #[repr(C)]
@@ -145,6 +146,10 @@ pub struct FaceRenderer {
     albedo_texture: wgpu::Texture,
     mask_texture: wgpu::Texture,
     has_mask: bool,
+    /// See [`FaceRenderer::set_albedo_correction`]; `Rgba16Float`.
+    correction_texture: wgpu::Texture,
+    /// The albedo layer the correction is added to, when there is one.
+    correction_layer: Option<u32>,
     overlay_texture: wgpu::Texture,
     has_overlay: bool,
     overlay_opacity: f32,
@@ -170,6 +175,28 @@ pub struct FaceRenderer {
 
     pipelines: Pipelines,
     attachments: Mutex<Option<Attachments>>,
+    /// See [`FaceRenderer::content_stamp`].
+    content_stamp: u64,
+}
+
+/// An RGB map in the UV space of one albedo layer, for
+/// [`FaceRenderer::set_albedo_correction`].
+#[derive(Clone, Copy, Debug)]
+pub struct AlbedoCorrection<'a> {
+    /// `width * height` RGB triples, rows top-first (as the albedo layers).
+    pub rgb: &'a [f32],
+    pub width: u32,
+    pub height: u32,
+    /// The albedo layer it is added to.
+    pub layer: u32,
+}
+
+/// Source of [`FaceRenderer::content_stamp`] values, shared by all renderers so that a
+/// stamp also tells two renderers apart.
+static NEXT_CONTENT_STAMP: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+fn new_content_stamp() -> u64 {
+    NEXT_CONTENT_STAMP.fetch_add(1, Ordering::Relaxed)
 }
 
 fn check_texture_fits(
@@ -344,6 +371,7 @@ impl FaceRenderer {
         );
         let albedo_texture = create_albedo_texture(device, queue, albedo);
         let mask_texture = create_mask_texture(device, queue, &[0], 1, 1);
+        let correction_texture = create_correction_texture(device, queue, &[[0; 4]], 1, 1);
         let overlay_texture =
             create_rgba_texture(device, queue, "face overlay", &[0, 0, 0, 255], 1, 1);
 
@@ -460,6 +488,7 @@ impl FaceRenderer {
                 &albedo_texture,
                 &mask_texture,
                 &overlay_texture,
+                &correction_texture,
             ],
             &sampler,
             &blended_texture,
@@ -482,6 +511,8 @@ impl FaceRenderer {
             albedo_texture,
             mask_texture,
             has_mask: false,
+            correction_texture,
+            correction_layer: None,
             overlay_texture,
             has_overlay: false,
             overlay_opacity: 1.0,
@@ -500,6 +531,7 @@ impl FaceRenderer {
             landmark_buffer,
             pipelines,
             attachments: Mutex::new(None),
+            content_stamp: new_content_stamp(),
         };
         renderer.upload_geometry(queue, mesh);
         tracing::debug!(
@@ -570,6 +602,7 @@ impl FaceRenderer {
                 &self.albedo_texture,
                 &self.mask_texture,
                 &self.overlay_texture,
+                &self.correction_texture,
             ],
             &self.sampler,
             &self.blended_texture,
@@ -617,7 +650,16 @@ impl FaceRenderer {
             &bytemuck::bytes_of(&uniform)[..used],
         );
         self.blend_dirty.store(true, Ordering::Release);
+        self.content_stamp = new_content_stamp();
         Ok(())
+    }
+
+    /// Changes whenever anything that [`Self::render`] draws changes (weights, geometry,
+    /// textures, mask, scalars, overlay) and differs between renderers: a caller that keeps
+    /// the last frame can skip rendering while the stamp, the [`FrameParams`] and the size
+    /// stay the same. (Re-setting unchanged weights keeps the stamp.)
+    pub fn content_stamp(&self) -> u64 {
+        self.content_stamp
     }
 
     /// Replaces the albedo texture array (same or different size).
@@ -651,6 +693,7 @@ impl FaceRenderer {
             self.albedo_texture = create_albedo_texture(&self.device, queue, albedo);
             self.rebuild_bind_group();
         }
+        self.content_stamp = new_content_stamp();
         Ok(())
     }
 
@@ -669,6 +712,7 @@ impl FaceRenderer {
             )));
         }
         self.upload_geometry(queue, mesh);
+        self.content_stamp = new_content_stamp();
         Ok(())
     }
 
@@ -682,6 +726,7 @@ impl FaceRenderer {
         queue: &wgpu::Queue,
         mask: Option<(&[f32], u32, u32)>,
     ) -> Result<(), RenderError> {
+        self.content_stamp = new_content_stamp();
         let Some((values, width, height)) = mask else {
             self.has_mask = false;
             return Ok(());
@@ -709,6 +754,70 @@ impl FaceRenderer {
         Ok(())
     }
 
+    /// An RGB map added to albedo layer `layer` where the mesh samples it (bilinear, clamped
+    /// to the edge, the sum clamped to 0..1), so a person's albedo can change per frame
+    /// (equation 3's dR_0 + sum_i w_i A_i dR_i over the mean albedo R_0^t) by uploading a
+    /// small map instead of the whole albedo. `None` removes it.
+    ///
+    /// Stored as `Rgba16Float`, which every backend can filter (WebGL2 included); half
+    /// precision is ~1e-4 on these values, far below an 8-bit colour step.
+    pub fn set_albedo_correction(
+        &mut self,
+        queue: &wgpu::Queue,
+        correction: Option<AlbedoCorrection<'_>>,
+    ) -> Result<(), RenderError> {
+        self.content_stamp = new_content_stamp();
+        let Some(c) = correction else {
+            self.correction_layer = None;
+            return Ok(());
+        };
+        let (w, h) = (c.width, c.height);
+        if w == 0 || h == 0 || c.rgb.len() != 3 * w as usize * h as usize {
+            return Err(RenderError::InvalidInput(format!(
+                "albedo correction has {} values for {w}x{h} RGB",
+                c.rgb.len()
+            )));
+        }
+        if c.layer >= self.albedo_texture.size().depth_or_array_layers {
+            return Err(RenderError::InvalidInput(format!(
+                "albedo correction for layer {} of {}",
+                c.layer,
+                self.albedo_texture.size().depth_or_array_layers
+            )));
+        }
+        if let Some(i) = c.rgb.iter().position(|v| !v.is_finite()) {
+            return Err(RenderError::InvalidInput(format!(
+                "albedo correction value {i} is {}",
+                c.rgb[i]
+            )));
+        }
+        check_texture_fits(&self.device, "albedo correction", w, h, 1)?;
+        let texels: Vec<[u16; 4]> = c
+            .rgb
+            .chunks_exact(3)
+            .map(|t| {
+                let f = |x: f32| half::f16::from_f32(x).to_bits();
+                [f(t[0]), f(t[1]), f(t[2]), 0]
+            })
+            .collect();
+        let size = self.correction_texture.size();
+        if (size.width, size.height) == (w, h) {
+            write_2d(
+                queue,
+                &self.correction_texture,
+                bytemuck::cast_slice(&texels),
+                8,
+                w,
+                h,
+            );
+        } else {
+            self.correction_texture = create_correction_texture(&self.device, queue, &texels, w, h);
+            self.rebuild_bind_group();
+        }
+        self.correction_layer = Some(c.layer);
+        Ok(())
+    }
+
     /// V per-vertex values shown (divided by [`FrameParams::heatmap_max`]) in
     /// [`crate::ViewMode::VertexHeatmap`]; `None` clears them.
     pub fn set_vertex_scalars(
@@ -716,6 +825,7 @@ impl FaceRenderer {
         queue: &wgpu::Queue,
         scalars: Option<&[f32]>,
     ) -> Result<(), RenderError> {
+        self.content_stamp = new_content_stamp();
         let Some(values) = scalars else {
             self.has_scalars = false;
             return Ok(());
@@ -749,6 +859,7 @@ impl FaceRenderer {
         image: Option<&image::RgbaImage>,
         opacity: f32,
     ) -> Result<(), RenderError> {
+        self.content_stamp = new_content_stamp();
         self.overlay_opacity = if opacity.is_finite() {
             opacity.clamp(0.0, 1.0)
         } else {
@@ -849,6 +960,11 @@ impl FaceRenderer {
             sh[i / 4][i % 4] = if c.is_finite() { *c } else { 0.0 };
         }
         let flags = if self.has_mask { FLAG_HAS_MASK } else { 0 }
+            | if self.correction_layer.is_some() {
+                FLAG_HAS_CORRECTION
+            } else {
+                0
+            }
             | if self.has_scalars {
                 FLAG_HAS_SCALARS
             } else {
@@ -870,7 +986,7 @@ impl FaceRenderer {
                 self.counts.shapes,
                 self.scalar_width,
                 self.data_width.trailing_zeros(),
-                0,
+                self.correction_layer.unwrap_or(u32::MAX),
             ],
         };
         let staging = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -1024,6 +1140,7 @@ fn create_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
                 count: None,
             },
             texture(8, false, D2),
+            texture(9, true, D2),
         ],
     })
 }
@@ -1032,8 +1149,8 @@ fn create_bind_group(
     device: &wgpu::Device,
     layout: &wgpu::BindGroupLayout,
     buffers: [&wgpu::Buffer; 2],
-    // data, scalars, albedo (array), mask, overlay
-    textures: [&wgpu::Texture; 5],
+    // data, scalars, albedo (array), mask, overlay, albedo correction
+    textures: [&wgpu::Texture; 6],
     sampler: &wgpu::Sampler,
     blended: &wgpu::Texture,
 ) -> wgpu::BindGroup {
@@ -1061,8 +1178,9 @@ fn create_bind_group(
             resource: b.as_entire_binding(),
         })
         .collect();
+    // Bindings 2..=6, then 7 is the sampler and 8 the blended geometry.
     entries.extend(views.iter().enumerate().map(|(i, v)| wgpu::BindGroupEntry {
-        binding: 2 + i as u32,
+        binding: if i < 5 { 2 + i as u32 } else { 9 },
         resource: wgpu::BindingResource::TextureView(v),
     }));
     entries.push(wgpu::BindGroupEntry {
@@ -1474,6 +1592,24 @@ fn create_mask_texture(
 ) -> wgpu::Texture {
     let t = create_2d(device, "face uv mask", wgpu::TextureFormat::R8Unorm, w, h);
     write_r8(queue, &t, data, w, h);
+    t
+}
+
+fn create_correction_texture(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    data: &[[u16; 4]],
+    w: u32,
+    h: u32,
+) -> wgpu::Texture {
+    let t = create_2d(
+        device,
+        "face albedo correction",
+        wgpu::TextureFormat::Rgba16Float,
+        w,
+        h,
+    );
+    write_2d(queue, &t, bytemuck::cast_slice(data), 8, w, h);
     t
 }
 

@@ -43,7 +43,8 @@ pub use face::sh::{
     directional_light as sh_directional, sh_basis, studio_light as sh_default_studio,
 };
 pub use face_renderer::{
-    BlendPath, FaceRenderer, RenderOptions, blend_prepass_supported, msaa_sample_count,
+    AlbedoCorrection, BlendPath, FaceRenderer, RenderOptions, blend_prepass_supported,
+    msaa_sample_count,
 };
 pub use mesh::{MeshData, RenderVertex, TextureLayers};
 pub use offscreen::{OffscreenOptions, OffscreenRenderer};
@@ -109,7 +110,7 @@ impl ViewMode {
 }
 
 /// Per-frame parameters of [`FaceRenderer::render`].
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct FrameParams {
     pub camera: Camera,
     pub view: ViewMode,
