@@ -285,3 +285,51 @@ fn albedo_correction_rejects_bad_input() {
         .set_albedo_correction(&queue, None)
         .expect("clear");
 }
+
+/// Culling back faces (what the studio's template views do) leaves the template's
+/// pictures as they are: its triangles face outwards everywhere that can be seen, the
+/// mouth's inside and the eyes included. Same tolerance as the goldens, from the front,
+/// three-quarter, profile, below and above, neutral and with the mouth wide open.
+#[test]
+fn culling_back_faces_leaves_the_template_pictures_unchanged() {
+    let f = fixture();
+    let options = renderer::OffscreenOptions {
+        cull_back_faces: true,
+        ..Default::default()
+    };
+    let mut culled = OffscreenRenderer::with_options(&f.scene.mesh, &f.scene.textures, options)
+        .unwrap_or_else(|e| panic!("no adapter: {e:#}"));
+    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
+    let full: &mut OffscreenRenderer = &mut guard;
+    full.face
+        .set_overlay_image(&full.device, &full.queue, None, 1.0)
+        .expect("clear overlay");
+    for (weights, yaw, pitch) in [
+        ("", 0.0, 0.0),
+        ("jawOpen=1,mouthSmileLeft=1,mouthFunnel=0.5", 0.0, 0.0),
+        ("jawOpen=0.8", 40.0, -15.0),
+        ("eyeBlinkLeft=1,jawOpen=0.5", 90.0, 0.0),
+        ("jawOpen=1", -30.0, 35.0),
+        ("", -90.0, -40.0),
+    ] {
+        let (w, _) = parse_weights(weights).expect("weights");
+        let orbit = Orbit {
+            yaw_deg: yaw,
+            pitch_deg: pitch,
+            ..Orbit::default()
+        };
+        for view in [StudioView::Shaded, StudioView::Normals] {
+            let a = render_view(&f.scene, full, view, &w, &orbit, SIZE).expect("render");
+            let b = render_view(&f.scene, &mut culled, view, &w, &orbit, SIZE).expect("render");
+            let off = a
+                .pixels()
+                .zip(b.pixels())
+                .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
+                .count();
+            assert!(
+                off as f64 <= 0.005 * (SIZE.0 * SIZE.1) as f64,
+                "{weights:?} yaw {yaw} pitch {pitch} {view:?}: {off} pixels differ with culling"
+            );
+        }
+    }
+}

@@ -141,6 +141,16 @@ pub fn interactive_options(rs: &egui_wgpu::RenderState) -> renderer::RenderOptio
     }
 }
 
+/// [`interactive_options`] for the ICT template and a person's blendshapes on it, whose
+/// triangles face outwards, so back faces are culled (tests/face_render.rs checks the
+/// pictures are unchanged); not for puppets.
+pub fn template_options(rs: &egui_wgpu::RenderState) -> renderer::RenderOptions {
+    renderer::RenderOptions {
+        cull_back_faces: true,
+        ..interactive_options(rs)
+    }
+}
+
 /// Dragging a view turns the head, scrolling over it moves the camera in and out.
 pub fn orbit_input(ui: &egui::Ui, response: &egui::Response, orbit: &mut crate::scene::Orbit) {
     if response.dragged() {
@@ -168,7 +178,7 @@ pub fn person_renderer(
         &rs.device,
         &rs.queue,
         VIEW_FORMAT,
-        interactive_options(rs),
+        template_options(rs),
         &mesh,
         &scene.textures,
     )

@@ -10,9 +10,7 @@ use renderer::FaceRenderer;
 
 use crate::blendshape_panel::BlendshapePanel;
 use crate::footage::{FootageJob, FootageRequest};
-use crate::gpu_view::{
-    VIEW_FORMAT, ViewTarget, available_pixels, interactive_options, orbit_input,
-};
+use crate::gpu_view::{VIEW_FORMAT, ViewTarget, available_pixels, orbit_input, template_options};
 use crate::overlay_view::OverlayView;
 use crate::puppet_panel::{DriveTarget, PersonTarget};
 use crate::scene::{Orbit, Scene, StudioView, demo_weights, frame_params};
@@ -155,7 +153,7 @@ impl StudioApp {
                 &rs.device,
                 &rs.queue,
                 VIEW_FORMAT,
-                interactive_options(rs),
+                template_options(rs),
                 &app.scene.mesh,
                 &app.scene.textures,
             ) {

@@ -80,6 +80,11 @@ pub struct RenderOptions {
     /// on a software rasteriser such as lavapipe.
     pub sample_count: u32,
     pub blend_path: BlendPath,
+    /// Skip triangles facing away from the camera (counter-clockwise is the front). Only
+    /// for meshes wound consistently outwards, such as the ICT template (tested against
+    /// the unculled pictures); off for arbitrary puppets, whose materials may be
+    /// double-sided. On a software rasteriser it saves about a quarter of a face frame.
+    pub cull_back_faces: bool,
 }
 
 impl RenderOptions {
@@ -93,6 +98,7 @@ impl RenderOptions {
             } else {
                 BlendPath::PerVertex
             },
+            cull_back_faces: false,
         }
     }
 }
@@ -277,6 +283,7 @@ impl FaceRenderer {
         let options = RenderOptions {
             sample_count,
             blend_path,
+            cull_back_faces: false,
         };
         Self::with_options(device, queue, target_format, options, mesh, albedo)
     }
@@ -295,6 +302,7 @@ impl FaceRenderer {
         let RenderOptions {
             sample_count,
             blend_path,
+            cull_back_faces,
         } = options;
         if sample_count != 1 && sample_count != 4 {
             return Err(RenderError::InvalidInput(format!(
@@ -441,6 +449,7 @@ impl FaceRenderer {
             target_format,
             sample_count,
             blend_path,
+            cull_back_faces,
         );
         let blend_prepass = (blend_path == BlendPath::PrePass).then(|| {
             create_blend_prepass(
@@ -1306,6 +1315,7 @@ fn create_pipelines(
     format: wgpu::TextureFormat,
     sample_count: u32,
     blend_path: BlendPath,
+    cull_back_faces: bool,
 ) -> Pipelines {
     // Selects the vertex shaders' blending path (see `vertex_geometry` in face.wgsl).
     let per_vertex = [(
@@ -1359,6 +1369,8 @@ fn create_pipelines(
         depth_compare: wgpu::CompareFunction,
         blend: Option<wgpu::BlendState>,
         write_mask: wgpu::ColorWrites,
+        /// Whether this pipeline draws the mesh's triangles (and may cull them).
+        mesh_triangles: bool,
     }
     let make = |v: Variant| {
         device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
@@ -1372,9 +1384,9 @@ fn create_pipelines(
             },
             primitive: wgpu::PrimitiveState {
                 topology: v.topology,
-                // No culling: meshes from models may have inconsistent winding, and depth
-                // testing resolves visibility anyway.
-                cull_mode: None,
+                // Culling only where the caller vouches for the winding (see
+                // RenderOptions::cull_back_faces); never for the full-screen and dot quads.
+                cull_mode: (v.mesh_triangles && cull_back_faces).then_some(wgpu::Face::Back),
                 ..Default::default()
             },
             depth_stencil: Some(wgpu::DepthStencilState {
@@ -1417,6 +1429,7 @@ fn create_pipelines(
             depth_compare: Always,
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
+            mesh_triangles: false,
         }),
         depth_prepass: make(Variant {
             label: "face depth pre-pass",
@@ -1428,6 +1441,7 @@ fn create_pipelines(
             depth_compare: LessEqual,
             blend: None,
             write_mask: wgpu::ColorWrites::empty(),
+            mesh_triangles: true,
         }),
         // LessEqual so that after the pre-pass exactly the front-most surface passes.
         mesh: make(Variant {
@@ -1440,6 +1454,7 @@ fn create_pipelines(
             depth_compare: LessEqual,
             blend: Some(alpha_blend),
             write_mask: wgpu::ColorWrites::ALL,
+            mesh_triangles: true,
         }),
         lines: make(Variant {
             label: "face wireframe",
@@ -1451,6 +1466,7 @@ fn create_pipelines(
             depth_compare: LessEqual,
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
+            mesh_triangles: false,
         }),
         // Landmarks are drawn on top of everything, occluded or not.
         landmarks: make(Variant {
@@ -1463,6 +1479,7 @@ fn create_pipelines(
             depth_compare: Always,
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
+            mesh_triangles: false,
         }),
     }
 }

@@ -20,6 +20,8 @@ struct Target {
 pub struct OffscreenOptions {
     pub sample_count: Option<u32>,
     pub blend_path: Option<BlendPath>,
+    /// [`RenderOptions::cull_back_faces`] (off by default).
+    pub cull_back_faces: bool,
 }
 
 /// Headless convenience: its own instance/adapter/device (lavapipe on a machine without a
@@ -71,6 +73,7 @@ impl OffscreenRenderer {
         let options = RenderOptions {
             sample_count: overrides.sample_count.unwrap_or(best.sample_count),
             blend_path: overrides.blend_path.unwrap_or(best.blend_path),
+            cull_back_faces: overrides.cull_back_faces,
         };
         if options.blend_path == BlendPath::PrePass && !crate::blend_prepass_supported(&adapter) {
             return Err(RenderError::InvalidInput(format!(
