@@ -67,6 +67,7 @@ fn bench(c: &mut Criterion) {
                 OffscreenOptions {
                     sample_count: Some(samples),
                     blend_path: Some(blend_path),
+                    cull_back_faces: false,
                 },
             )
             .expect("renderer");
