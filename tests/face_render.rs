@@ -40,16 +40,23 @@ fn golden(name: &str) -> PathBuf {
         .join(format!("{name}.png"))
 }
 
-fn render(view: StudioView, weights: &str, orbit: Orbit) -> image::RgbaImage {
-    let f = fixture();
-    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
+/// Runs `f` with the shared renderer, its overlay image cleared (tests run in parallel).
+fn with_renderer<R>(f: impl FnOnce(&Scene, &mut OffscreenRenderer) -> R) -> R {
+    let fixture = fixture();
+    let mut guard = fixture.renderer.lock().unwrap_or_else(|e| e.into_inner());
     let renderer: &mut OffscreenRenderer = &mut guard;
     renderer
         .face
         .set_overlay_image(&renderer.device, &renderer.queue, None, 1.0)
         .expect("clear overlay");
+    f(&fixture.scene, renderer)
+}
+
+fn render(view: StudioView, weights: &str, orbit: Orbit) -> image::RgbaImage {
     let (weights, _) = parse_weights(weights).expect("weights");
-    render_view(&f.scene, renderer, view, &weights, &orbit, SIZE).expect("render")
+    with_renderer(|scene, renderer| {
+        render_view(scene, renderer, view, &weights, &orbit, SIZE).expect("render")
+    })
 }
 
 fn changed_pixels(a: &image::RgbaImage, b: &image::RgbaImage) -> usize {
@@ -163,71 +170,65 @@ fn overlay_on_an_image() {
 /// correction must matter (far more pixels change against the mean albedo).
 #[test]
 fn albedo_correction_matches_equation_3_on_the_cpu() {
-    let f = fixture();
-    let scene = &f.scene;
-    let person = likeness::demo::synthetic_person(&scene.model, scene.albedo.face(), 7);
     let (weights, _) =
         parse_weights("jawOpen=0.7,eyeBlinkLeft=1,mouthSmileRight=0.8").expect("weights");
-    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
-    let renderer: &mut OffscreenRenderer = &mut guard;
-    renderer
-        .face
-        .set_overlay_image(&renderer.device, &renderer.queue, None, 1.0)
-        .expect("clear overlay");
-    let view = |r: &mut OffscreenRenderer| {
-        render_view(
-            scene,
-            r,
-            StudioView::Albedo,
-            &weights,
-            &Orbit::default(),
-            SIZE,
-        )
-        .expect("render")
-    };
-    let mean = view(renderer);
+    let [mean, cpu, gpu, cleared] = with_renderer(|scene, renderer| {
+        let person = likeness::demo::synthetic_person(&scene.model, scene.albedo.face(), 7);
+        let view = |r: &mut OffscreenRenderer| {
+            render_view(
+                scene,
+                r,
+                StudioView::Albedo,
+                &weights,
+                &Orbit::default(),
+                SIZE,
+            )
+            .expect("render")
+        };
+        let mean = view(renderer);
 
-    let albedo = scene
-        .model
-        .albedo(scene.albedo.face(), &person, &weights)
-        .expect("equation 3");
-    renderer
-        .face
-        .set_albedo(
-            &renderer.queue,
-            &likeness::demo::layers_with_face(&scene.textures, &albedo),
-        )
-        .expect("albedo");
-    let cpu = view(renderer);
+        let albedo = scene
+            .model
+            .albedo(scene.albedo.face(), &person, &weights)
+            .expect("equation 3");
+        renderer
+            .face
+            .set_albedo(
+                &renderer.queue,
+                &likeness::demo::layers_with_face(&scene.textures, &albedo),
+            )
+            .expect("albedo");
+        let cpu = view(renderer);
 
-    renderer
-        .face
-        .set_albedo(&renderer.queue, &scene.textures)
-        .expect("mean albedo");
-    let correction = scene
-        .model
-        .albedo_correction(&person, &weights)
-        .expect("correction");
-    renderer
-        .face
-        .set_albedo_correction(
-            &renderer.queue,
-            Some(renderer::AlbedoCorrection {
-                rgb: &correction.data,
-                width: correction.width as u32,
-                height: correction.height as u32,
-                layer: face::albedo::AlbedoLayer::Face.index() as u32,
-            }),
-        )
-        .expect("correction");
-    let gpu = view(renderer);
-    renderer
-        .face
-        .set_albedo_correction(&renderer.queue, None)
-        .expect("clear correction");
-    // Removing the correction gives the mean albedo back.
-    let cleared = view(renderer);
-    drop(guard);
+        renderer
+            .face
+            .set_albedo(&renderer.queue, &scene.textures)
+            .expect("mean albedo");
+        let correction = scene
+            .model
+            .albedo_correction(&person, &weights)
+            .expect("correction");
+        renderer
+            .face
+            .set_albedo_correction(
+                &renderer.queue,
+                Some(renderer::AlbedoCorrection {
+                    rgb: &correction.data,
+                    width: correction.width as u32,
+                    height: correction.height as u32,
+                    layer: face::albedo::AlbedoLayer::Face.index() as u32,
+                }),
+            )
+            .expect("correction");
+        let gpu = view(renderer);
+        renderer
+            .face
+            .set_albedo_correction(&renderer.queue, None)
+            .expect("clear correction");
+        // Removing the correction gives the mean albedo back.
+        let cleared = view(renderer);
+        [mean, cpu, gpu, cleared]
+    });
 
     let within = |a: &image::RgbaImage, b: &image::RgbaImage, tol: u8| {
         a.pixels()
@@ -292,44 +293,40 @@ fn albedo_correction_rejects_bad_input() {
 /// three-quarter, profile, below and above, neutral and with the mouth wide open.
 #[test]
 fn culling_back_faces_leaves_the_template_pictures_unchanged() {
-    let f = fixture();
-    let options = renderer::OffscreenOptions {
-        cull_back_faces: true,
-        ..Default::default()
-    };
-    let mut culled = OffscreenRenderer::with_options(&f.scene.mesh, &f.scene.textures, options)
-        .unwrap_or_else(|e| panic!("no adapter: {e:#}"));
-    let mut guard = f.renderer.lock().unwrap_or_else(|e| e.into_inner());
-    let full: &mut OffscreenRenderer = &mut guard;
-    full.face
-        .set_overlay_image(&full.device, &full.queue, None, 1.0)
-        .expect("clear overlay");
-    for (weights, yaw, pitch) in [
-        ("", 0.0, 0.0),
-        ("jawOpen=1,mouthSmileLeft=1,mouthFunnel=0.5", 0.0, 0.0),
-        ("jawOpen=0.8", 40.0, -15.0),
-        ("eyeBlinkLeft=1,jawOpen=0.5", 90.0, 0.0),
-        ("jawOpen=1", -30.0, 35.0),
-        ("", -90.0, -40.0),
-    ] {
-        let (w, _) = parse_weights(weights).expect("weights");
-        let orbit = Orbit {
-            yaw_deg: yaw,
-            pitch_deg: pitch,
-            ..Orbit::default()
+    with_renderer(|scene, full| {
+        let options = renderer::OffscreenOptions {
+            cull_back_faces: true,
+            ..Default::default()
         };
-        for view in [StudioView::Shaded, StudioView::Normals] {
-            let a = render_view(&f.scene, full, view, &w, &orbit, SIZE).expect("render");
-            let b = render_view(&f.scene, &mut culled, view, &w, &orbit, SIZE).expect("render");
-            let off = a
-                .pixels()
-                .zip(b.pixels())
-                .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
-                .count();
-            assert!(
-                off as f64 <= 0.005 * (SIZE.0 * SIZE.1) as f64,
-                "{weights:?} yaw {yaw} pitch {pitch} {view:?}: {off} pixels differ with culling"
-            );
+        let mut culled = OffscreenRenderer::with_options(&scene.mesh, &scene.textures, options)
+            .unwrap_or_else(|e| panic!("no adapter: {e:#}"));
+        for (weights, yaw, pitch) in [
+            ("", 0.0, 0.0),
+            ("jawOpen=1,mouthSmileLeft=1,mouthFunnel=0.5", 0.0, 0.0),
+            ("jawOpen=0.8", 40.0, -15.0),
+            ("eyeBlinkLeft=1,jawOpen=0.5", 90.0, 0.0),
+            ("jawOpen=1", -30.0, 35.0),
+            ("", -90.0, -40.0),
+        ] {
+            let (w, _) = parse_weights(weights).expect("weights");
+            let orbit = Orbit {
+                yaw_deg: yaw,
+                pitch_deg: pitch,
+                ..Orbit::default()
+            };
+            for view in [StudioView::Shaded, StudioView::Normals] {
+                let a = render_view(scene, full, view, &w, &orbit, SIZE).expect("render");
+                let b = render_view(scene, &mut culled, view, &w, &orbit, SIZE).expect("render");
+                let off = a
+                    .pixels()
+                    .zip(b.pixels())
+                    .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
+                    .count();
+                assert!(
+                    off as f64 <= 0.005 * (SIZE.0 * SIZE.1) as f64,
+                    "{weights:?} yaw {yaw} pitch {pitch} {view:?}: {off} pixels differ with culling"
+                );
+            }
         }
-    }
+    });
 }
