@@ -204,12 +204,27 @@ impl FaceModel {
 
     /// The person's part of equation (3), dR_0 + sum_i w_i A_i dR_i, on the corrections'
     /// own grid (128 x 128): what a renderer adds to R_0^t per frame.
+    ///
+    /// Runs per frame, so instead of [`PersonalCorrections::validate`] (every value of all
+    /// 106 maps) it checks the maps' sizes and the result: a NaN or infinity in dR_0, in a
+    /// dR_i with a non-zero weight, or in the weights makes the result non-finite.
     pub fn albedo_correction(
         &self,
         corrections: &PersonalCorrections,
         weights: &BlendshapeWeights,
     ) -> Result<UvMap> {
-        corrections.validate()?;
+        let sized = |m: &UvMap| {
+            m.width == CORRECTION_SIZE && m.height == CORRECTION_SIZE && m.channels == 3
+        };
+        if corrections.dynamic_albedo.len() != NUM_BLENDSHAPES
+            || !sized(&corrections.static_albedo)
+            || !corrections.dynamic_albedo.iter().all(sized)
+        {
+            return Err(FaceError::InvalidInput(format!(
+                "albedo corrections must be dR_0 and {NUM_BLENDSHAPES} dR_i of \
+                 {CORRECTION_SIZE}x{CORRECTION_SIZE}x3"
+            )));
+        }
         let mut correction = corrections.static_albedo.clone();
         for (i, &w) in weights.0.iter().enumerate() {
             if w == 0.0 {
@@ -229,6 +244,12 @@ impl FaceModel {
                 }
             }
         }
+        if !correction.is_finite() {
+            return Err(FaceError::InvalidInput(
+                "dR_0, a weight or the dR_i of a non-zero weight has NaN or infinite values"
+                    .into(),
+            ));
+        }
         Ok(correction)
     }
 
@@ -240,6 +261,7 @@ impl FaceModel {
         corrections: &PersonalCorrections,
         weights: &BlendshapeWeights,
     ) -> Result<UvMap> {
+        corrections.validate()?;
         let correction = self.albedo_correction(corrections, weights)?;
         let mut albedo = mean_albedo.clone();
         for y in 0..albedo.height {

@@ -291,6 +291,44 @@ fn equation_3_albedo() {
     }
 }
 
+/// The per-frame part of equation (3) on the 128 x 128 grid: dR_0 + sum_i w_i A_i dR_i,
+/// transcribed texel by texel; non-finite values it uses are errors, ones it does not use
+/// (a dR_i whose weight is 0) are not its concern.
+#[test]
+fn equation_3_albedo_correction() {
+    let m = model();
+    let corrections = random_corrections();
+    let w = sparse_weights();
+    let correction = m.albedo_correction(&corrections, &w).unwrap();
+    for t in [0usize, 5000, 8191, 12345, 16383] {
+        for c in 0..3 {
+            let mut expected = corrections.static_albedo.data[3 * t + c];
+            for i in 0..NUM_BLENDSHAPES {
+                expected += w.0[i]
+                    * m.masks.mask(i).data[t]
+                    * corrections.dynamic_albedo[i].data[3 * t + c];
+            }
+            let got = correction.data[3 * t + c];
+            assert!((got - expected).abs() < 1e-5, "texel {t}.{c}: {got} vs {expected}");
+        }
+    }
+    let used = w.0.iter().position(|&x| x != 0.0).unwrap();
+    let unused = w.0.iter().position(|&x| x == 0.0).unwrap();
+    let mut bad = corrections.clone();
+    bad.dynamic_albedo[unused].data.fill(f32::NAN);
+    assert!(m.albedo_correction(&bad, &w).is_ok());
+    assert!(m.albedo(&UvMap::zeros(8, 8, 3), &bad, &w).is_err(), "albedo validates all");
+    // A NaN anywhere in a used map reaches the result (0 x NaN is NaN).
+    bad.dynamic_albedo[used].data.fill(f32::NAN);
+    assert!(m.albedo_correction(&bad, &w).is_err());
+    let mut nan_weight = w;
+    nan_weight.0[used] = f32::NAN;
+    assert!(m.albedo_correction(&corrections, &nan_weight).is_err());
+    let mut small = corrections.clone();
+    small.static_albedo = UvMap::zeros(4, 4, 3);
+    assert!(m.albedo_correction(&small, &w).is_err());
+}
+
 #[test]
 fn weights_are_validated() {
     let mut values = vec![0.0f32; NUM_BLENDSHAPES];
