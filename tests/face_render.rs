@@ -212,12 +212,7 @@ fn albedo_correction_matches_equation_3_on_the_cpu() {
             .face
             .set_albedo_correction(
                 &renderer.queue,
-                Some(renderer::AlbedoCorrection {
-                    rgb: &correction.data,
-                    width: correction.width as u32,
-                    height: correction.height as u32,
-                    layer: face::albedo::AlbedoLayer::Face.index() as u32,
-                }),
+                Some(likeness::gpu_view::face_layer_correction(&correction)),
             )
             .expect("correction");
         let gpu = view(renderer);

@@ -199,14 +199,17 @@ pub fn upload_person_albedo(
         .model
         .albedo_correction(corrections, weights)
         .map_err(|e| format!("albedo: {e}"))?;
-    face.set_albedo_correction(
-        &rs.queue,
-        Some(renderer::AlbedoCorrection {
-            rgb: &correction.data,
-            width: correction.width as u32,
-            height: correction.height as u32,
-            layer: face::albedo::AlbedoLayer::Face.index() as u32,
-        }),
-    )
-    .map_err(|e| e.to_string())
+    face.set_albedo_correction(&rs.queue, Some(face_layer_correction(&correction)))
+        .map_err(|e| e.to_string())
+}
+
+/// A correction map of [`face::FaceModel::albedo_correction`] as the renderer takes it:
+/// added to the template's face albedo layer.
+pub fn face_layer_correction(correction: &face::uv::UvMap) -> renderer::AlbedoCorrection<'_> {
+    renderer::AlbedoCorrection {
+        rgb: &correction.data,
+        width: correction.width as u32,
+        height: correction.height as u32,
+        layer: face::albedo::AlbedoLayer::Face.index() as u32,
+    }
 }

@@ -246,8 +246,7 @@ impl FaceModel {
         }
         if !correction.is_finite() {
             return Err(FaceError::InvalidInput(
-                "dR_0, a weight or the dR_i of a non-zero weight has NaN or infinite values"
-                    .into(),
+                "dR_0, a weight or the dR_i of a non-zero weight has NaN or infinite values".into(),
             ));
         }
         Ok(correction)

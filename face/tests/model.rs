@@ -309,7 +309,10 @@ fn equation_3_albedo_correction() {
                     * corrections.dynamic_albedo[i].data[3 * t + c];
             }
             let got = correction.data[3 * t + c];
-            assert!((got - expected).abs() < 1e-5, "texel {t}.{c}: {got} vs {expected}");
+            assert!(
+                (got - expected).abs() < 1e-5,
+                "texel {t}.{c}: {got} vs {expected}"
+            );
         }
     }
     let used = w.0.iter().position(|&x| x != 0.0).unwrap();
@@ -317,7 +320,10 @@ fn equation_3_albedo_correction() {
     let mut bad = corrections.clone();
     bad.dynamic_albedo[unused].data.fill(f32::NAN);
     assert!(m.albedo_correction(&bad, &w).is_ok());
-    assert!(m.albedo(&UvMap::zeros(8, 8, 3), &bad, &w).is_err(), "albedo validates all");
+    assert!(
+        m.albedo(&UvMap::zeros(8, 8, 3), &bad, &w).is_err(),
+        "albedo validates all"
+    );
     // A NaN anywhere in a used map reaches the result (0 x NaN is NaN).
     bad.dynamic_albedo[used].data.fill(f32::NAN);
     assert!(m.albedo_correction(&bad, &w).is_err());
