@@ -42,9 +42,9 @@ fn harness() -> Harness<'static, StudioApp> {
 fn the_slider_list_sets_blendshape_weights() {
     let mut harness = harness();
     assert!(
-        harness.state().state.error.is_none(),
+        harness.state().state.notices.latest_error().is_none(),
         "{:?}",
-        harness.state().state.error
+        harness.state().state.notices.latest_error()
     );
     let jaw = ict_index("jawOpen").unwrap();
     harness
@@ -68,9 +68,10 @@ fn the_slider_list_sets_blendshape_weights() {
 #[test]
 fn the_search_box_filters_the_list() {
     let mut harness = harness();
+    // The list draws the rows in view (it is scrolled); the first is.
     assert!(
         harness
-            .query_by_role_and_label(Role::Slider, "mouthSmile_L")
+            .query_by_role_and_label(Role::Slider, "browDown_L")
             .is_some()
     );
     harness.get_by_role(Role::TextInput).focus();
@@ -96,6 +97,11 @@ fn the_search_box_filters_the_list() {
     assert!(
         harness
             .query_by_role_and_label(Role::Slider, "jawOpen")
+            .is_none()
+    );
+    assert!(
+        harness
+            .query_by_role_and_label(Role::Slider, "browDown_L")
             .is_none()
     );
 }
@@ -219,7 +225,7 @@ fn the_timeline_steps_plays_and_drives_the_face_with_the_tracked_weights() {
     harness.get_by_label("Input").click();
     harness.run_steps(2);
     assert_eq!(harness.state().state.panel, likeness::studio::Panel::Input);
-    assert!(harness.state().state.error.is_none());
+    assert!(harness.state().state.notices.latest_error().is_none());
 }
 
 #[test]
@@ -287,9 +293,9 @@ fn the_reconstruction_overlay_lies_on_the_face_and_blends_by_opacity() {
             .set_value_accesskit(opacity);
         harness.run_steps(3);
         assert!(
-            harness.state().state.error.is_none(),
+            harness.state().state.notices.latest_error().is_none(),
             "{:?}",
-            harness.state().state.error
+            harness.state().state.notices.latest_error()
         );
         harness.render().expect("render")
     };
@@ -431,9 +437,9 @@ fn the_maps_panel_shows_each_learned_map() {
         harness.get_by_label(label).click();
         harness.run_steps(2);
         assert!(
-            harness.state().state.error.is_none(),
+            harness.state().state.notices.latest_error().is_none(),
             "{label}: {:?}",
-            harness.state().state.error
+            harness.state().state.notices.latest_error()
         );
         pictures.push(harness.render().expect("render"));
         // Goldens of the dynamic albedo (diverging scale) and the attention mask in UV.
@@ -502,7 +508,7 @@ fn the_lighting_and_motion_panel_plots_curves_and_switches_names() {
         4,
         "the same four curves under ARKit names"
     );
-    assert!(harness.state().state.error.is_none());
+    assert!(harness.state().state.notices.latest_error().is_none());
     // The golden: the lit sphere of frame 0 and four weight curves with the playhead.
     harness.snapshot("studio_lighting_and_motion");
 }
@@ -530,9 +536,9 @@ fn the_blendshapes_panel_selects_searches_and_shows_the_correction() {
     harness.run_steps(3);
     assert_eq!(harness.state().state.selected, largest);
     assert!(
-        harness.state().state.error.is_none(),
+        harness.state().state.notices.latest_error().is_none(),
         "{:?}",
-        harness.state().state.error
+        harness.state().state.notices.latest_error()
     );
     let selected = harness.render().expect("render");
     let changed = before
@@ -592,9 +598,9 @@ fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
     harness.run_steps(3);
     assert_eq!(harness.state().state.panel, likeness::studio::Panel::Puppet);
     assert!(
-        harness.state().state.error.is_none(),
+        harness.state().state.notices.latest_error().is_none(),
         "{:?}",
-        harness.state().state.error
+        harness.state().state.notices.latest_error()
     );
     let shape = {
         let p = harness
@@ -658,9 +664,9 @@ fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
         harness.get_by_label(label).click();
         harness.run_steps(2);
         assert!(
-            harness.state().state.error.is_none(),
+            harness.state().state.notices.latest_error().is_none(),
             "{label}: {:?}",
-            harness.state().state.error
+            harness.state().state.notices.latest_error()
         );
     }
     let animation = retarget::Puppet::load(&dir.join("pip_animation.glb")).expect("animation GLB");
@@ -681,9 +687,9 @@ fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
     harness.run_steps(3);
     assert_eq!(harness.state().puppet_panel.drive, DriveTarget::Person);
     assert!(
-        harness.state().state.error.is_none(),
+        harness.state().state.notices.latest_error().is_none(),
         "{:?}",
-        harness.state().state.error
+        harness.state().state.notices.latest_error()
     );
     assert_eq!(
         harness.state().puppet_panel.shown_weights,
@@ -764,9 +770,9 @@ fn dropped_footage_is_tracked_off_the_ui_thread_and_cancel_keeps_the_session() {
     assert!(harness.query_by_label("Cancel").is_some());
     run_until_job_ends(&mut harness);
     assert!(
-        harness.state().state.error.is_none(),
+        harness.state().state.notices.latest_error().is_none(),
         "{:?}",
-        harness.state().state.error
+        harness.state().state.notices.latest_error()
     );
     let session = harness.state().session().expect("a session").clone();
     assert!(
@@ -790,11 +796,11 @@ fn dropped_footage_is_tracked_off_the_ui_thread_and_cancel_keeps_the_session() {
         harness
             .state()
             .state
-            .status
-            .as_deref()
+            .notices
+            .latest_message()
             .is_some_and(|s| s.contains("6 frames")),
         "{:?}",
-        harness.state().state.status
+        harness.state().state.notices.all()
     );
 
     // The processed session was autosaved and can be recovered.
@@ -822,13 +828,13 @@ fn dropped_footage_is_tracked_off_the_ui_thread_and_cancel_keeps_the_session() {
         harness
             .state()
             .state
-            .status
-            .as_deref()
+            .notices
+            .latest_message()
             .is_some_and(|s| s.ends_with("cancelled")),
         "{:?}",
-        harness.state().state.status
+        harness.state().state.notices.all()
     );
-    assert!(harness.state().state.error.is_none());
+    assert!(harness.state().state.notices.latest_error().is_none());
 
     // A file that is not footage: an error in the UI, the session stays.
     let junk = dir.join("notes.txt");
@@ -840,7 +846,7 @@ fn dropped_footage_is_tracked_off_the_ui_thread_and_cancel_keeps_the_session() {
     harness.step();
     run_until_job_ends(&mut harness);
     assert!(
-        harness.state().state.error.is_some(),
+        harness.state().state.notices.latest_error().is_some(),
         "an unreadable file is reported"
     );
     assert!(Arc::ptr_eq(
@@ -860,11 +866,42 @@ fn a_saved_session_opens_again_with_its_footage_model_and_tracking() {
     // Saving adds the extension and leaves no temporary file.
     harness.state_mut().save_session(&dir.join("person"));
     let path = dir.join("person.likeness");
-    assert!(path.is_file(), "{:?}", harness.state().state.error);
+    assert!(
+        path.is_file(),
+        "{:?}",
+        harness.state().state.notices.latest_error()
+    );
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
 
+    // Reopened the way a user does it, through the File menu's recent files (the native
+    // file dialog cannot be driven headless; it ends in the same `open_session`).
     harness.state_mut().state.playback.frame = 5;
-    harness.state_mut().open_session(&path);
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Recent").hover();
+    harness.run_steps(2);
+    harness
+        .get_by_label(&likeness::settings::RecentFile::Session(path.clone()).label())
+        .click();
+    // Stepped one frame at a time: an opened session starts playing from its first frame.
+    let opened_from_menu = |h: &Harness<'static, StudioApp>| {
+        h.state()
+            .state
+            .notices
+            .latest_message()
+            .is_some_and(|m| m.starts_with("opened"))
+    };
+    for _ in 0..4 {
+        if opened_from_menu(&harness) {
+            break;
+        }
+        harness.step();
+    }
+    assert!(
+        opened_from_menu(&harness),
+        "the session opened from the Recent menu: {:?}",
+        harness.state().state.notices.all()
+    );
     assert_eq!(
         harness.state().state.playback.frame,
         0,
@@ -872,9 +909,9 @@ fn a_saved_session_opens_again_with_its_footage_model_and_tracking() {
     );
     harness.run_steps(2);
     assert!(
-        harness.state().state.error.is_none(),
+        harness.state().state.notices.latest_error().is_none(),
         "{:?}",
-        harness.state().state.error
+        harness.state().state.notices.latest_error()
     );
     let opened = harness.state().session().expect("a session").clone();
     assert!(!Arc::ptr_eq(&opened, &demo));
@@ -898,8 +935,36 @@ fn a_saved_session_opens_again_with_its_footage_model_and_tracking() {
     std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap();
     harness.state_mut().open_session(&cut);
     harness.run_steps(2);
-    assert!(harness.state().state.error.is_some());
+    let error = harness
+        .state()
+        .state
+        .notices
+        .latest_error()
+        .expect("the damaged file is reported")
+        .to_owned();
     assert!(Arc::ptr_eq(harness.state().session().unwrap(), &opened));
+    // The error is a toast on screen until dismissed; a second error does not replace it.
+    harness.state_mut().state.notices.error("a second error");
+    harness.run_steps(2);
+    assert!(harness.query_by_label(&error).is_some(), "{error} is shown");
+    assert!(harness.query_by_label("a second error").is_some());
+    harness.run_steps(30);
+    assert!(
+        harness.query_by_label(&error).is_some(),
+        "errors do not fade"
+    );
+    let dismiss = harness
+        .get_all_by_label("Dismiss")
+        .next()
+        .expect("a Dismiss button");
+    dismiss.click();
+    harness.run_steps(2);
+    assert!(harness.query_by_label(&error).is_none(), "dismissed");
+    assert_eq!(
+        harness.state().state.notices.latest_error(),
+        Some("a second error")
+    );
+    harness.state_mut().state.notices.dismiss_all();
 
     // Person B from a session file drives their own model in the puppet panel.
     harness.state_mut().load_person_b(&path);
@@ -931,9 +996,9 @@ fn three_d_views_redraw_only_when_what_they_show_changes() {
         harness.state_mut().state.playback.playing = false;
         harness.run_steps(3);
         assert!(
-            harness.state().state.error.is_none(),
+            harness.state().state.notices.latest_error().is_none(),
             "{panel}: {:?}",
-            harness.state().state.error
+            harness.state().state.notices.latest_error()
         );
         let before = harness.state().view_renders();
         let paused = harness.render().expect("render");
@@ -960,4 +1025,55 @@ fn three_d_views_redraw_only_when_what_they_show_changes() {
     assert!(
         likeness::studio_shots::set_up_panel(harness.state_mut(), &scene, "no such panel").is_err()
     );
+}
+
+/// A window on a software rasteriser draws shapes without feathered edges, which takes far
+/// fewer triangles for the same picture layout;
+/// the user's choice in the File menu overrides it, and headless pictures keep smooth edges.
+#[test]
+fn a_window_without_a_gpu_draws_lighter_shapes_unless_asked_not_to() {
+    fn triangles(harness: &Harness<'static, StudioApp>) -> usize {
+        harness
+            .ctx
+            .tessellate(harness.output().shapes.clone(), 1.0)
+            .iter()
+            .map(|p| match &p.primitive {
+                egui::epaint::Primitive::Mesh(m) => m.indices.len() / 3,
+                egui::epaint::Primitive::Callback(_) => 0,
+            })
+            .sum()
+    }
+    let mut harness = harness();
+    assert!(
+        harness.state().smooth_edges(),
+        "headless keeps smooth edges"
+    );
+    assert!(harness.ctx.tessellation_options(|o| o.feathering));
+    let smooth = triangles(&harness);
+
+    harness.state_mut().window_on_cpu_adapter = true;
+    harness.run_steps(2);
+    assert!(!harness.state().smooth_edges());
+    assert!(!harness.ctx.tessellation_options(|o| o.feathering));
+    let light = triangles(&harness);
+    eprintln!("triangles: smooth {smooth}, light {light}");
+    assert!(
+        (light as f64) < 0.6 * smooth as f64,
+        "light drawing: {light} triangles vs {smooth}"
+    );
+    // The same widgets are there.
+    assert!(
+        harness
+            .query_by_role_and_label(Role::Slider, "browDown_L")
+            .is_some()
+    );
+
+    // The File menu's checkbox turns smooth edges back on, and the choice is a setting.
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Smooth shape edges").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().settings.smooth_edges, Some(true));
+    assert!(harness.ctx.tessellation_options(|o| o.feathering));
+    assert_eq!(harness.state().current_settings().smooth_edges, Some(true));
 }

@@ -15,6 +15,7 @@ use renderer::{FaceRenderer, FrameParams, ViewMode};
 use crate::colormap::colour_bar;
 use crate::gpu_view::{ViewTarget, orbit_input, person_renderer, upload_person_albedo};
 use crate::scene::{Orbit, Scene, StudioView, frame_params};
+use crate::studio_panels::list_rows;
 use crate::studio_session::StudioSession;
 
 /// How the list is ordered.
@@ -123,33 +124,33 @@ impl BlendshapePanel {
         ui.label("Largest |F(A_i dS_i)| over the vertices");
         ui.separator();
         let max = heatmap_max_mm(session);
-        egui::ScrollArea::vertical().show(ui, |ui| {
-            for i in listed(session, self.order, &self.filter) {
-                ui.horizontal(|ui| {
-                    // A bar in proportion to the correction, so the list reads at a glance.
-                    let (rect, _) =
-                        ui.allocate_exact_size(egui::vec2(40.0, 10.0), egui::Sense::hover());
-                    let filled = rect.width() * (session.correction_mm[i] / max).clamp(0.0, 1.0);
-                    ui.painter()
-                        .rect_filled(rect, 2.0, ui.visuals().extreme_bg_color);
-                    ui.painter().rect_filled(
-                        egui::Rect::from_min_size(rect.min, egui::vec2(filled, rect.height())),
-                        2.0,
-                        egui::Color32::from_rgb(230, 150, 60),
-                    );
-                    if ui
-                        .selectable_label(*selected == i, row_label(session, i))
-                        .clicked()
-                    {
-                        *selected = i;
-                    }
-                });
-            }
+        let rows = listed(session, self.order, &self.filter);
+        list_rows(ui, rows.len(), |ui, row| {
+            let i = rows[row];
+            ui.horizontal(|ui| {
+                // A bar in proportion to the correction, so the list reads at a glance.
+                let (rect, _) =
+                    ui.allocate_exact_size(egui::vec2(40.0, 10.0), egui::Sense::hover());
+                let filled = rect.width() * (session.correction_mm[i] / max).clamp(0.0, 1.0);
+                ui.painter()
+                    .rect_filled(rect, 2.0, ui.visuals().extreme_bg_color);
+                ui.painter().rect_filled(
+                    egui::Rect::from_min_size(rect.min, egui::vec2(filled, rect.height())),
+                    2.0,
+                    egui::Color32::from_rgb(230, 150, 60),
+                );
+                if ui
+                    .selectable_label(*selected == i, row_label(session, i))
+                    .clicked()
+                {
+                    *selected = i;
+                }
+            });
         });
     }
 
     /// Template, personalized and heatmap (or mask) views of blendshape `i`. Returns an
-    /// error message for the studio's error bar.
+    /// error message for the studio's notices (toasts).
     #[allow(clippy::too_many_arguments)]
     pub fn views_ui(
         &mut self,

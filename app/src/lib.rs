@@ -14,6 +14,7 @@ pub mod fps_probe;
 pub mod gpu_view;
 pub mod headless;
 pub mod motion_panel;
+pub mod notices;
 pub mod overlay_view;
 pub mod puppet_panel;
 pub mod puppet_view;

@@ -538,11 +538,17 @@ fn run_studio(
                 Ok(session) => app.with_session(session),
                 Err(e) => {
                     let mut app = app;
-                    app.state.error = Some(format!("the demo could not be built: {e:#}"));
+                    app.state
+                        .notices
+                        .error(format!("the demo could not be built: {e:#}"));
                     app
                 }
             };
             app.window_cleared_to_panel_colour = true;
+            app.window_on_cpu_adapter = cc
+                .wgpu_render_state
+                .as_ref()
+                .is_some_and(|rs| rs.adapter.get_info().device_type == wgpu::DeviceType::Cpu);
             if let Some((panel, secs)) = measure {
                 if let Err(e) = likeness::studio_shots::set_up_panel(&mut app, &scene, &panel) {
                     if let Ok(mut slot) = setup_slot.lock() {

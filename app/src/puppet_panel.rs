@@ -25,7 +25,7 @@ use crate::gpu_view::{
 };
 use crate::puppet_view::PuppetView;
 use crate::scene::{Orbit, Scene, StudioView, frame_params};
-use crate::studio_panels::fit_rect;
+use crate::studio_panels::{fit_rect, list_rows};
 use crate::studio_session::StudioSession;
 
 /// The project's demo puppet (made by `retarget::generator`, shipped in `assets/puppets`).
@@ -356,39 +356,39 @@ impl PuppetPanel {
         ui.separator();
         let arkit = frame_arkit(session, frame);
         let filter = self.filter.trim().to_ascii_lowercase();
-        egui::ScrollArea::vertical().show(ui, |ui| {
-            for (a, name) in ARKIT_NAMES.iter().enumerate() {
-                if !filter.is_empty() && !name.to_ascii_lowercase().contains(&filter) {
-                    continue;
-                }
-                let (input, output) = match self.puppet.as_ref() {
-                    Some(p) => p.channel_response(a, &arkit),
-                    None => (arkit[a], None),
+        let listed: Vec<usize> = (0..NUM_ARKIT)
+            .filter(|&a| filter.is_empty() || ARKIT_NAMES[a].to_ascii_lowercase().contains(&filter))
+            .collect();
+        list_rows(ui, listed.len(), |ui, row| {
+            let a = listed[row];
+            let name = ARKIT_NAMES[a];
+            let (input, output) = match self.puppet.as_ref() {
+                Some(p) => p.channel_response(a, &arkit),
+                None => (arkit[a], None),
+            };
+            ui.horizontal(|ui| {
+                value_bar(ui, input, egui::Color32::from_rgb(90, 160, 230));
+                value_bar(
+                    ui,
+                    output.unwrap_or(0.0),
+                    egui::Color32::from_rgb(230, 150, 60),
+                );
+                let text = match output {
+                    Some(o) => format!("{name}  {input:.2} -> {o:.2}"),
+                    None => format!("{name}  {input:.2} (drives nothing)"),
                 };
-                ui.horizontal(|ui| {
-                    value_bar(ui, input, egui::Color32::from_rgb(90, 160, 230));
-                    value_bar(
-                        ui,
-                        output.unwrap_or(0.0),
-                        egui::Color32::from_rgb(230, 150, 60),
-                    );
-                    let text = match output {
-                        Some(o) => format!("{name}  {input:.2} -> {o:.2}"),
-                        None => format!("{name}  {input:.2} (drives nothing)"),
-                    };
-                    if ui
-                        .selectable_label(self.selected_channel == a, text)
-                        .clicked()
-                    {
-                        self.selected_channel = a;
-                    }
-                });
-            }
+                if ui
+                    .selectable_label(self.selected_channel == a, text)
+                    .clicked()
+                {
+                    self.selected_channel = a;
+                }
+            });
         });
     }
 
     /// The input frame beside the puppet (or person B), the mapping editor and exports.
-    /// Returns an error message for the studio's error bar.
+    /// Returns an error message for the studio's notices (toasts).
     #[allow(clippy::too_many_arguments)]
     pub fn ui(
         &mut self,

@@ -40,6 +40,9 @@ pub struct Settings {
     pub show_boxes: bool,
     /// The last puppet loaded (reloaded at start when it still exists).
     pub puppet: Option<PathBuf>,
+    /// Anti-aliased shape edges in the window; `None` chooses by the adapter (off on a
+    /// software rasteriser, where they double the triangles egui draws).
+    pub smooth_edges: Option<bool>,
 }
 
 impl Default for Settings {
@@ -52,6 +55,7 @@ impl Default for Settings {
             show_model: true,
             show_boxes: true,
             puppet: None,
+            smooth_edges: None,
         }
     }
 }

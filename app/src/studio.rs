@@ -15,7 +15,7 @@ use crate::overlay_view::OverlayView;
 use crate::puppet_panel::{DriveTarget, PersonTarget};
 use crate::scene::{Orbit, Scene, StudioView, demo_weights, frame_params};
 use crate::settings::{RecentFile, SETTINGS_KEY, Settings, autosave_path, with_session_extension};
-use crate::studio_panels::{PlaybackState, fit_rect, paint_overlay, timeline_ui};
+use crate::studio_panels::{PlaybackState, fit_rect, list_rows, paint_overlay, timeline_ui};
 use crate::studio_session::StudioSession;
 
 /// The studio's main panels.
@@ -54,9 +54,9 @@ pub struct StudioState {
     /// Show the timings in the toolbar (off in snapshot tests, where they would differ run
     /// to run).
     pub show_timings: bool,
-    pub error: Option<String>,
-    /// The last finished job's message (kept until dismissed).
-    pub status: Option<String>,
+    /// Errors (kept until dismissed) and messages (a save, a finished job), shown as
+    /// toasts.
+    pub notices: crate::notices::Notices,
     pub panel: Panel,
     pub playback: PlaybackState,
 }
@@ -74,8 +74,7 @@ impl Default for StudioState {
             frame_time_ms: 0.0,
             frame_interval_ms: 0.0,
             show_timings: true,
-            error: None,
-            status: None,
+            notices: crate::notices::Notices::default(),
             panel: Panel::Face,
             playback: PlaybackState::default(),
         }
@@ -119,6 +118,13 @@ pub struct StudioApp {
     /// frame; a headless renderer (kittest clears to transparent) leaves this off and gets
     /// one background rectangle instead of one fill per panel.
     pub window_cleared_to_panel_colour: bool,
+    /// The window draws on a software rasteriser (no GPU): by default it draws shapes
+    /// without anti-aliased edges (see
+    /// [`StudioApp::smooth_edges`]). Set by the native window; headless pictures keep the
+    /// full drawing.
+    pub window_on_cpu_adapter: bool,
+    /// The shape drawing last applied to the egui context.
+    applied_smooth_edges: Option<bool>,
 }
 
 impl StudioApp {
@@ -141,6 +147,8 @@ impl StudioApp {
             autosave: None,
             fps_probe: None,
             window_cleared_to_panel_colour: false,
+            window_on_cpu_adapter: false,
+            applied_smooth_edges: None,
         };
         if let Some(storage) = cc.storage {
             let settings = eframe::get_value::<Settings>(storage, SETTINGS_KEY)
@@ -164,11 +172,12 @@ impl StudioApp {
                         uploaded_mask: None,
                     })
                 }
-                Err(e) => app.state.error = Some(format!("3D view unavailable: {e}")),
+                Err(e) => app.state.notices.error(format!("3D view unavailable: {e}")),
             },
-            None => {
-                app.state.error = Some("3D view unavailable: eframe is not running on wgpu".into())
-            }
+            None => app
+                .state
+                .notices
+                .error("3D view unavailable: eframe is not running on wgpu"),
         }
         app
     }
@@ -220,7 +229,7 @@ impl StudioApp {
         let recent = RecentFile::Session(path.to_owned());
         match StudioSession::load(&self.scene.model, path) {
             Ok(session) => {
-                self.state.status = Some(format!(
+                self.state.notices.message(format!(
                     "opened {} ({} frames)",
                     path.display(),
                     session.frame_count()
@@ -231,7 +240,7 @@ impl StudioApp {
             }
             Err(e) => {
                 self.settings.forget(&recent);
-                self.state.error = Some(e);
+                self.state.notices.error(e);
             }
         }
     }
@@ -239,17 +248,19 @@ impl StudioApp {
     /// Saves the session (atomically) to `path`.
     pub fn save_session(&mut self, path: &std::path::Path) {
         let Some(session) = self.session.clone() else {
-            self.state.error = Some("there is no session to save".into());
+            self.state.notices.error("there is no session to save");
             return;
         };
         let path = with_session_extension(path);
         match session.save(&path) {
             Ok(()) => {
-                self.state.status = Some(format!("saved {}", path.display()));
+                self.state
+                    .notices
+                    .message(format!("saved {}", path.display()));
                 self.settings.remember(RecentFile::Session(path.clone()));
                 self.session_path = Some(path);
             }
-            Err(e) => self.state.error = Some(e),
+            Err(e) => self.state.notices.error(e),
         }
     }
 
@@ -266,7 +277,7 @@ impl StudioApp {
                     self.state.panel = Panel::Puppet;
                 }
             }
-            Err(e) => self.state.error = Some(e),
+            Err(e) => self.state.notices.error(e),
         }
     }
 
@@ -285,7 +296,7 @@ impl StudioApp {
             });
         match spawned {
             Ok(_) => self.autosave = Some(receiver),
-            Err(e) => self.state.error = Some(format!("autosave: {e}")),
+            Err(e) => self.state.notices.error(format!("autosave: {e}")),
         }
     }
 
@@ -299,7 +310,7 @@ impl StudioApp {
                 self.autosave = None;
             }
             Ok(Err(e)) => {
-                self.state.error = Some(e);
+                self.state.notices.error(e);
                 self.autosave = None;
             }
             Err(mpsc::TryRecvError::Empty) => {}
@@ -327,7 +338,7 @@ impl StudioApp {
     /// it is done.
     pub fn open_footage(&mut self, ctx: &egui::Context, input: &str) {
         if let Some(job) = &self.job {
-            self.state.error = Some(format!(
+            self.state.notices.error(format!(
                 "still processing {}: cancel it before opening {input}",
                 job.input
             ));
@@ -339,11 +350,10 @@ impl StudioApp {
         }) {
             Ok(job) => {
                 self.job = Some(job);
-                self.state.status = None;
                 self.settings
                     .remember(RecentFile::Footage(input.to_owned()));
             }
-            Err(e) => self.state.error = Some(format!("{e:#}")),
+            Err(e) => self.state.notices.error(format!("{e:#}")),
         }
     }
 
@@ -360,7 +370,7 @@ impl StudioApp {
         let input = self.job.take().map(|j| j.input.clone()).unwrap_or_default();
         match result {
             Ok(session) => {
-                self.state.status = Some(format!(
+                self.state.notices.message(format!(
                     "{input}: {} frames tracked and personalized (File > Save session keeps it)",
                     session.frame_count()
                 ));
@@ -370,9 +380,9 @@ impl StudioApp {
                 self.start_autosave(session);
             }
             Err(e) if e.ends_with("cancelled") => {
-                self.state.status = Some(format!("{input}: cancelled"));
+                self.state.notices.message(format!("{input}: cancelled"));
             }
-            Err(e) => self.state.error = Some(e),
+            Err(e) => self.state.notices.error(e),
         }
     }
 
@@ -491,6 +501,18 @@ impl StudioApp {
                 self.open_session(&autosave);
             }
             ui.separator();
+            let mut smooth = self.smooth_edges();
+            if ui
+                .checkbox(&mut smooth, "Smooth shape edges")
+                .on_hover_text(
+                    "Anti-aliased shapes; off by default without a \
+                     GPU, where they cost much of each frame",
+                )
+                .changed()
+            {
+                self.settings.smooth_edges = Some(smooth);
+            }
+            ui.separator();
             if ui
                 .button("Load person B from a session...")
                 .on_hover_text("Drive another person's own blendshapes and dynamic albedo")
@@ -526,6 +548,25 @@ impl StudioApp {
             Some(path) if path != self.autosave_path => self.save_session(&path),
             _ => self.save_session_dialog(),
         }
+    }
+
+    /// Whether shapes are drawn with anti-aliased (feathered) edges: the user's choice, else
+    /// on except in a window on a software rasteriser. There every feathered edge is a
+    /// strip of extra triangles, and they were the largest part of a frame of the side
+    /// lists (README, "Studio frame rate"); text is drawn the same either way.
+    pub fn smooth_edges(&self) -> bool {
+        self.settings
+            .smooth_edges
+            .unwrap_or(!self.window_on_cpu_adapter)
+    }
+
+    fn apply_smooth_edges(&mut self, ctx: &egui::Context) {
+        let smooth = self.smooth_edges();
+        if self.applied_smooth_edges == Some(smooth) {
+            return;
+        }
+        self.applied_smooth_edges = Some(smooth);
+        ctx.tessellation_options_mut(|o| o.feathering = smooth);
     }
 
     /// How many times the studio's 3D views have been drawn (each [`ViewTarget::render`]
@@ -599,7 +640,7 @@ impl StudioApp {
             Ok(Some(composite)) => composite,
             Ok(None) => id,
             Err(e) => {
-                self.state.error = Some(e);
+                self.state.notices.error(e);
                 self.overlay.opacity = 0.0;
                 id
             }
@@ -671,7 +712,7 @@ impl StudioApp {
             k,
             input,
         ) {
-            self.state.error = Some(error);
+            self.state.notices.error(error);
         }
         self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
     }
@@ -693,7 +734,7 @@ impl StudioApp {
                             self.state.panel = Panel::Puppet;
                         }
                     }
-                    Err(e) => self.state.error = Some(format!("{e:#}")),
+                    Err(e) => self.state.notices.error(format!("{e:#}")),
                 },
                 // Anything else is footage: an image, a video or a folder; what cannot be
                 // read is reported by the job.
@@ -718,7 +759,7 @@ impl StudioApp {
             frame,
             &weights,
         ) {
-            self.state.error = Some(error);
+            self.state.notices.error(error);
         }
     }
 
@@ -782,33 +823,33 @@ impl StudioApp {
         });
         ui.separator();
         let filter = self.state.filter.to_ascii_lowercase();
-        egui::ScrollArea::vertical().show(ui, |ui| {
-            for (i, name) in ICT_NAMES.iter().enumerate() {
-                if !filter.is_empty() && !name.to_ascii_lowercase().contains(&filter) {
-                    continue;
+        let listed: Vec<usize> = (0..NUM_BLENDSHAPES)
+            .filter(|&i| filter.is_empty() || ICT_NAMES[i].to_ascii_lowercase().contains(&filter))
+            .collect();
+        list_rows(ui, listed.len(), |ui, row| {
+            let i = listed[row];
+            let name = &ICT_NAMES[i];
+            ui.horizontal(|ui| {
+                let selected = self.state.selected == i;
+                // "A" for the paper's attention mask A_i; only default-font glyphs are safe here.
+                let pick = ui.selectable_label(selected, "A");
+                if pick
+                    .on_hover_text(format!("Show the attention mask of {name}"))
+                    .clicked()
+                {
+                    self.state.selected = i;
+                    if matches!(self.state.view, StudioView::Mask(_)) {
+                        self.state.view = StudioView::Mask(i);
+                    }
                 }
-                ui.horizontal(|ui| {
-                    let selected = self.state.selected == i;
-                    // "A" for the paper's attention mask A_i; only default-font glyphs are safe here.
-                    let pick = ui.selectable_label(selected, "A");
-                    if pick
-                        .on_hover_text(format!("Show the attention mask of {name}"))
-                        .clicked()
-                    {
-                        self.state.selected = i;
-                        if matches!(self.state.view, StudioView::Mask(_)) {
-                            self.state.view = StudioView::Mask(i);
-                        }
-                    }
-                    let response = ui
-                        .add(egui::Slider::new(&mut self.state.weights[i], 0.0..=1.0).text(*name));
-                    if response.changed() {
-                        // A hand-set weight stops the scripted loop so it is not overwritten.
-                        self.state.playing_demo = false;
-                        self.state.selected = i;
-                    }
-                });
-            }
+                let response =
+                    ui.add(egui::Slider::new(&mut self.state.weights[i], 0.0..=1.0).text(*name));
+                if response.changed() {
+                    // A hand-set weight stops the scripted loop so it is not overwritten.
+                    self.state.playing_demo = false;
+                    self.state.selected = i;
+                }
+            });
         });
     }
 
@@ -883,18 +924,13 @@ impl StudioApp {
         let size = available_pixels(ui);
         let (Some(viewport), Some(rs)) = (self.viewport.as_mut(), frame.wgpu_render_state()) else {
             ui.centered_and_justified(|ui| {
-                ui.label(
-                    self.state
-                        .error
-                        .clone()
-                        .unwrap_or_else(|| "no 3D view".into()),
-                );
+                ui.label(self.state.notices.latest_error().unwrap_or("no 3D view"));
             });
             return;
         };
         let started = Instant::now();
         if let Err(e) = viewport.face.set_weights(&rs.queue, &self.state.weights) {
-            self.state.error = Some(e.to_string());
+            self.state.notices.error(e.to_string());
         }
         if let StudioView::Mask(i) = self.state.view
             && viewport.uploaded_mask != Some(i)
@@ -904,7 +940,7 @@ impl StudioApp {
                 .set_uv_mask(&rs.queue, Some(self.scene.mask(i)))
             {
                 Ok(()) => viewport.uploaded_mask = Some(i),
-                Err(e) => self.state.error = Some(e.to_string()),
+                Err(e) => self.state.notices.error(e.to_string()),
             }
         }
         let params = frame_params(self.state.view, &self.state.orbit, size[0], size[1]);
@@ -940,7 +976,7 @@ impl StudioApp {
             self.state.selected,
             &mut self.state.orbit,
         ) {
-            self.state.error = Some(error);
+            self.state.notices.error(error);
         }
         self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
     }
@@ -983,6 +1019,7 @@ impl eframe::App for StudioApp {
                 ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
             }
         }
+        self.apply_smooth_edges(ui.ctx());
         self.poll_job();
         self.poll_autosave();
         self.shortcuts(ui.ctx());
@@ -1041,35 +1078,18 @@ impl StudioApp {
                 .frame(side_frame(ui))
                 .show(ui, |ui| self.job_ui(ui));
         }
-        if let Some(status) = self.state.status.clone() {
-            egui::Panel::bottom("status")
-                .frame(side_frame(ui))
-                .show(ui, |ui| {
-                    ui.horizontal(|ui| {
-                        ui.label(&status);
-                        if ui.button("OK").clicked() {
-                            self.state.status = None;
-                        }
-                    });
-                });
-        }
-        if let Some(error) = self.state.error.clone() {
-            egui::Panel::bottom("errors")
-                .frame(side_frame(ui))
-                .show(ui, |ui| {
-                    ui.horizontal(|ui| {
-                        ui.colored_label(egui::Color32::LIGHT_RED, &error);
-                        if ui.button("Dismiss").clicked() {
-                            self.state.error = None;
-                        }
-                    });
-                });
-        }
         if let Some(session) = self.session.clone() {
             egui::Panel::bottom("timeline")
                 .frame(side_frame(ui))
                 .show(ui, |ui| timeline_ui(ui, &mut self.state.playback, &session));
         }
+        // What the panels above left: the main panel, where the toasts go.
+        let main_rect = ui.available_rect_before_wrap();
+        self.main_panel_ui(ui, frame);
+        self.state.notices.ui(ui.ctx(), main_rect);
+    }
+
+    fn main_panel_ui(&mut self, ui: &mut egui::Ui, frame: &eframe::Frame) {
         match self.state.panel {
             Panel::Input if self.session.is_some() => {
                 egui::CentralPanel::default()

@@ -55,6 +55,18 @@ impl PlaybackState {
     }
 }
 
+/// A scrolled list of `rows` rows, each one widget high, of which only the rows in view are
+/// laid out and drawn. The side lists have 53 rows, and on a software rasteriser every row
+/// drawn costs frame time (README, "Studio frame rate").
+pub fn list_rows(ui: &mut egui::Ui, rows: usize, mut row: impl FnMut(&mut egui::Ui, usize)) {
+    let height = ui.spacing().interact_size.y;
+    egui::ScrollArea::vertical().show_rows(ui, height, rows, |ui, range| {
+        for k in range {
+            row(ui, k);
+        }
+    });
+}
+
 /// Play/pause, previous/next and a scrub slider over the session's frames.
 pub fn timeline_ui(ui: &mut egui::Ui, playback: &mut PlaybackState, session: &StudioSession) {
     let frames = session.frame_count();

@@ -211,7 +211,13 @@ pub fn write_studio_panels(
         // Textures (frames, maps, the puppet) upload on the first frame a panel is drawn;
         // the later frames show them.
         harness.run_steps(3);
-        if let Some(error) = harness.state().state.error.clone() {
+        if let Some(error) = harness
+            .state()
+            .state
+            .notices
+            .latest_error()
+            .map(str::to_owned)
+        {
             anyhow::bail!("the {} panel reported an error: {error}", shot.name);
         }
         let image = harness
@@ -280,6 +286,8 @@ pub fn bench_studio(
     }
     let render_state = headless_render_state(window_renderer_options())?;
     let device = render_state.device.clone();
+    // Drawn as the window would be on this adapter (`StudioApp::smooth_edges`).
+    let on_cpu = render_state.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
     let app_scene = scene.clone();
     let mut harness = Harness::builder()
         .with_size(egui::vec2(size[0] as f32, size[1] as f32))
@@ -289,6 +297,7 @@ pub fn bench_studio(
         .build_eframe(move |cc| {
             let mut app = StudioApp::new(cc, app_scene).with_session(session);
             app.state.show_timings = false;
+            app.window_on_cpu_adapter = on_cpu;
             app
         });
     let mut rows = Vec::new();
@@ -323,7 +332,13 @@ pub fn bench_studio(
                 frames_with_3d += 1;
             }
         }
-        if let Some(error) = harness.state().state.error.clone() {
+        if let Some(error) = harness
+            .state()
+            .state
+            .notices
+            .latest_error()
+            .map(str::to_owned)
+        {
             anyhow::bail!("{panel}: {error}");
         }
         let triangles = harness
