@@ -1032,17 +1032,7 @@ fn three_d_views_redraw_only_when_what_they_show_changes() {
 /// the user's choice in the File menu overrides it, and headless pictures keep smooth edges.
 #[test]
 fn a_window_without_a_gpu_draws_lighter_shapes_unless_asked_not_to() {
-    fn triangles(harness: &Harness<'static, StudioApp>) -> usize {
-        harness
-            .ctx
-            .tessellate(harness.output().shapes.clone(), 1.0)
-            .iter()
-            .map(|p| match &p.primitive {
-                egui::epaint::Primitive::Mesh(m) => m.indices.len() / 3,
-                egui::epaint::Primitive::Callback(_) => 0,
-            })
-            .sum()
-    }
+    use likeness::studio_shots::egui_triangles as triangles;
     let mut harness = harness();
     assert!(
         harness.state().smooth_edges(),

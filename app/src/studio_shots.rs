@@ -211,15 +211,7 @@ pub fn write_studio_panels(
         // Textures (frames, maps, the puppet) upload on the first frame a panel is drawn;
         // the later frames show them.
         harness.run_steps(3);
-        if let Some(error) = harness
-            .state()
-            .state
-            .notices
-            .latest_error()
-            .map(str::to_owned)
-        {
-            anyhow::bail!("the {} panel reported an error: {error}", shot.name);
-        }
+        no_error_shown(&harness, &format!("the {} panel", shot.name))?;
         let image = harness
             .render()
             .map_err(|e| anyhow!("cannot render the {} panel: {e}", shot.name))?;
@@ -241,6 +233,28 @@ pub fn window_renderer_options() -> egui_wgpu::RendererOptions {
         dithering: false,
         ..Default::default()
     }
+}
+
+/// Fails with the studio's latest error, if it shows one, naming `what` was being drawn.
+fn no_error_shown(harness: &Harness<'_, StudioApp>, what: &str) -> Result<()> {
+    match harness.state().state.notices.latest_error() {
+        Some(error) => anyhow::bail!("{what} reported an error: {error}"),
+        None => Ok(()),
+    }
+}
+
+/// How many triangles egui tessellates for the harness's last frame: the studio's own
+/// drawing cost on a software rasteriser, which `bench-studio` reports.
+pub fn egui_triangles(harness: &Harness<'_, StudioApp>) -> usize {
+    harness
+        .ctx
+        .tessellate(harness.output().shapes.clone(), 1.0)
+        .iter()
+        .map(|p| match &p.primitive {
+            egui::epaint::Primitive::Mesh(m) => m.indices.len() / 3,
+            egui::epaint::Primitive::Callback(_) => 0,
+        })
+        .sum()
 }
 
 /// One line of [`bench_studio`]'s table.
@@ -332,24 +346,8 @@ pub fn bench_studio(
                 frames_with_3d += 1;
             }
         }
-        if let Some(error) = harness
-            .state()
-            .state
-            .notices
-            .latest_error()
-            .map(str::to_owned)
-        {
-            anyhow::bail!("{panel}: {error}");
-        }
-        let triangles = harness
-            .ctx
-            .tessellate(harness.output().shapes.clone(), 1.0)
-            .iter()
-            .map(|p| match &p.primitive {
-                egui::epaint::Primitive::Mesh(m) => m.indices.len() / 3,
-                egui::epaint::Primitive::Callback(_) => 0,
-            })
-            .sum();
+        no_error_shown(&harness, panel)?;
+        let triangles = egui_triangles(&harness);
         let n = times.len() as f64;
         times.sort_by(f64::total_cmp);
         rows.push(BenchRow {
