@@ -1027,6 +1027,60 @@ fn three_d_views_redraw_only_when_what_they_show_changes() {
     );
 }
 
+/// In a window on a software rasteriser the puppet view renders at half width and height
+/// while the clip plays and at full size when paused; on a GPU, or when the user turns
+/// it off in the File menu, it stays full size while playing.
+#[test]
+fn the_puppet_view_renders_at_half_size_only_while_playing_without_a_gpu() {
+    let mut harness = session_harness();
+    let scene = scene();
+    likeness::studio_shots::set_up_panel(harness.state_mut(), &scene, "puppet").expect("puppet");
+    let size_when = |harness: &mut Harness<'_, StudioApp>, playing: bool| {
+        harness.state_mut().state.playback.playing = playing;
+        harness.run_steps(3);
+        harness
+            .state()
+            .puppet_view_pixels()
+            .expect("the puppet view rendered")
+    };
+    let full = size_when(&mut harness, false);
+    assert!(full[0] > 100 && full[1] > 100, "{full:?}");
+    assert_eq!(
+        size_when(&mut harness, true),
+        full,
+        "on a GPU it stays full size"
+    );
+
+    harness.state_mut().window_on_cpu_adapter = true;
+    assert!(harness.state().reduce_3d_while_playing());
+    let playing = size_when(&mut harness, true);
+    for axis in 0..2 {
+        assert!(
+            playing[axis].abs_diff(full[axis].div_ceil(2)) <= 1,
+            "half size while playing: {playing:?} vs {full:?}"
+        );
+    }
+    assert_eq!(size_when(&mut harness, false), full, "sharp when paused");
+
+    // The File menu's checkbox keeps it full size, and the choice is a setting.
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness
+        .get_by_label("Half-size 3D view while playing")
+        .click();
+    harness.run_steps(2);
+    assert_eq!(
+        harness.state().settings.reduce_3d_while_playing,
+        Some(false)
+    );
+    assert_eq!(
+        harness.state().current_settings().reduce_3d_while_playing,
+        Some(false)
+    );
+    harness.key_press(egui::Key::Escape);
+    assert_eq!(size_when(&mut harness, true), full, "turned off: full size");
+}
+
 /// A window on a software rasteriser draws shapes without feathered edges, which takes far
 /// fewer triangles for the same picture layout;
 /// the user's choice in the File menu overrides it, and headless pictures keep smooth edges.

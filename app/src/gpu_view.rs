@@ -126,6 +126,29 @@ impl ViewTarget {
     }
 }
 
+impl ViewTarget {
+    /// The size of the texture last prepared, in pixels.
+    pub fn size(&self) -> Option<[u32; 2]> {
+        self.target.as_ref().map(|t| t.size)
+    }
+}
+
+/// The fraction of a 3D view's size it is rendered at: half width and height (a quarter of
+/// the pixels) while a clip plays with `reduce` on, which a software rasteriser needs
+/// since its cost grows with the pixels filled, and the full size when paused, so a still
+/// picture is always sharp.
+pub fn view_render_scale(playing: bool, reduce: bool) -> f32 {
+    if playing && reduce { 0.5 } else { 1.0 }
+}
+
+/// `size` points scaled by `scale`, in whole pixels, at least 1 x 1.
+pub fn scaled_pixels(size: [f32; 2], scale: f32) -> [u32; 2] {
+    [
+        (size[0] * scale).round().max(1.0) as u32,
+        (size[1] * scale).round().max(1.0) as u32,
+    ]
+}
+
 /// The size in whole pixels of the space `ui` has left, at least 16 x 16.
 pub fn available_pixels(ui: &egui::Ui) -> [u32; 2] {
     let available = ui.available_size();

@@ -49,6 +49,10 @@ enum Command {
         /// measures what the studio can sustain rather than the refresh rate.
         #[arg(long)]
         vsync: Option<bool>,
+        /// Render the puppet view at half size while a clip plays (default: on without a
+        /// GPU); the File menu has the same choice.
+        #[arg(long)]
+        reduce_3d_while_playing: Option<bool>,
     },
     /// Write the demo's views to PNG files without opening a window.
     Demo {
@@ -130,7 +134,9 @@ enum Command {
         #[arg(long, default_value_t = 120)]
         frames: usize,
         /// Comma-separated panels (any of `demo --headless`'s: input, overlay, face,
-        /// blendshapes, ..., puppet, person_b), or `all`.
+        /// blendshapes, ..., puppet, person_b), or `all`. A `:full` suffix keeps the
+        /// panel's 3D view at full size while playing (`puppet:full`), to compare with the
+        /// half size a CPU adapter gets by default.
         #[arg(long, default_value = "overlay,face,puppet,person_b")]
         panels: String,
     },
@@ -283,6 +289,7 @@ fn main() -> Result<()> {
         panel: "puppet".into(),
         size: "1280x800".into(),
         vsync: None,
+        reduce_3d_while_playing: None,
     });
     let load_scene = || Scene::load(cli.facemodel.as_deref());
     match command {
@@ -352,6 +359,7 @@ fn main() -> Result<()> {
             panel,
             size,
             vsync,
+            reduce_3d_while_playing,
             ..
         } => {
             let size = parse_size(&size)?;
@@ -363,7 +371,7 @@ fn main() -> Result<()> {
                 None => None,
             };
             let vsync = vsync.unwrap_or(measure.is_none());
-            run_studio(load_scene()?, size, vsync, measure)?
+            run_studio(load_scene()?, size, vsync, measure, reduce_3d_while_playing)?
         }
         Command::Demo { out, .. } => {
             report_written(&write_all_demo_views(load_scene()?, &out)?);
@@ -500,6 +508,7 @@ fn run_studio(
     size: (u32, u32),
     vsync: bool,
     measure: Option<(String, f64)>,
+    reduce_3d_while_playing: Option<bool>,
 ) -> Result<()> {
     let session = demo_session(&scene);
     if measure.is_some() && session.is_err() {
@@ -549,6 +558,9 @@ fn run_studio(
                 .wgpu_render_state
                 .as_ref()
                 .is_some_and(|rs| rs.adapter.get_info().device_type == wgpu::DeviceType::Cpu);
+            if reduce_3d_while_playing.is_some() {
+                app.settings.reduce_3d_while_playing = reduce_3d_while_playing;
+            }
             if let Some((panel, secs)) = measure {
                 if let Err(e) = likeness::studio_shots::set_up_panel(&mut app, &scene, &panel) {
                     if let Ok(mut slot) = setup_slot.lock() {
@@ -574,10 +586,16 @@ fn run_studio(
     }
     if let Some(r) = report.lock().ok().and_then(|mut r| r.take()) {
         println!(
-            "studio window {}x{} (vsync {}), panel {}, demo clip playing: {} frames in {:.1} s",
+            "studio window {}x{} (vsync {}, half-size 3D while playing {}), panel {}, \
+             demo clip playing: {} frames in {:.1} s",
             size.0,
             size.1,
             if vsync { "on" } else { "off" },
+            match reduce_3d_while_playing {
+                Some(true) => "on",
+                Some(false) => "off",
+                None => "by adapter",
+            },
             r.panel,
             r.frames,
             r.seconds

@@ -227,6 +227,9 @@ pub struct PuppetPanel {
     /// The puppet's renderer weights of the last frame shown (tests read them).
     pub shown_weights: Vec<f32>,
     pub shown_pose: Option<PuppetPose>,
+    /// The fraction of the view's size the 3D view is rendered at (shown scaled to fill
+    /// it); the studio sets it each frame from [`crate::gpu_view::view_render_scale`].
+    pub render_scale: f32,
     generation: u64,
     tried_demo_puppet: bool,
     dragging_point: Option<usize>,
@@ -248,6 +251,7 @@ impl Default for PuppetPanel {
             status: None,
             shown_weights: Vec::new(),
             shown_pose: None,
+            render_scale: 1.0,
             generation: 0,
             tried_demo_puppet: false,
             dragging_point: None,
@@ -422,7 +426,7 @@ impl PuppetPanel {
                     egui::Color32::WHITE,
                 );
             }
-            let view_size = [half as u32, view_height as u32];
+            let view_size = crate::gpu_view::scaled_pixels([half, view_height], self.render_scale);
             match rs.map(|rs| self.render(rs, scene, session, frame, view_size)) {
                 Some(Ok(Some(id))) => {
                     let response = ui.add(

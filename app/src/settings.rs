@@ -43,6 +43,9 @@ pub struct Settings {
     /// Anti-aliased shape edges in the window; `None` chooses by the adapter (off on a
     /// software rasteriser, where they double the triangles egui draws).
     pub smooth_edges: Option<bool>,
+    /// Render the puppet view at half size while a clip plays; `None` chooses by the
+    /// adapter (on for a software rasteriser, where its cost grows with the pixels filled).
+    pub reduce_3d_while_playing: Option<bool>,
 }
 
 impl Default for Settings {
@@ -56,6 +59,7 @@ impl Default for Settings {
             show_boxes: true,
             puppet: None,
             smooth_edges: None,
+            reduce_3d_while_playing: None,
         }
     }
 }

@@ -512,6 +512,17 @@ impl StudioApp {
             {
                 self.settings.smooth_edges = Some(smooth);
             }
+            let mut reduce = self.reduce_3d_while_playing();
+            if ui
+                .checkbox(&mut reduce, "Half-size 3D view while playing")
+                .on_hover_text(
+                    "The puppet view is rendered at half width and height while a clip \
+                     plays and sharp when paused; on by default without a GPU",
+                )
+                .changed()
+            {
+                self.settings.reduce_3d_while_playing = Some(reduce);
+            }
             ui.separator();
             if ui
                 .button("Load person B from a session...")
@@ -560,6 +571,15 @@ impl StudioApp {
             .unwrap_or(!self.window_on_cpu_adapter)
     }
 
+    /// Whether the puppet view renders at half size while a clip plays: the user's choice,
+    /// else on in a window on a software rasteriser, where the 3D view's cost follows the
+    /// pixels it fills (README, "Studio frame rate").
+    pub fn reduce_3d_while_playing(&self) -> bool {
+        self.settings
+            .reduce_3d_while_playing
+            .unwrap_or(self.window_on_cpu_adapter)
+    }
+
     fn apply_smooth_edges(&mut self, ctx: &egui::Context) {
         let smooth = self.smooth_edges();
         if self.applied_smooth_edges == Some(smooth) {
@@ -581,6 +601,11 @@ impl StudioApp {
                 .iter()
                 .map(|t| t.renders)
                 .sum::<u64>()
+    }
+
+    /// The size in pixels the puppet view was last rendered at.
+    pub fn puppet_view_pixels(&self) -> Option<[u32; 2]> {
+        self.puppet_panel.target.size()
     }
 
     pub fn session(&self) -> Option<&Arc<StudioSession>> {
@@ -703,6 +728,10 @@ impl StudioApp {
         let input = self
             .frame_texture_id(ui.ctx(), &session, k)
             .zip(session.frames.get(k).map(|f| [f.width(), f.height()]));
+        self.puppet_panel.render_scale = crate::gpu_view::view_render_scale(
+            self.state.playback.playing,
+            self.reduce_3d_while_playing(),
+        );
         let started = Instant::now();
         if let Some(error) = self.puppet_panel.ui(
             ui,

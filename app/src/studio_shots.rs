@@ -316,7 +316,14 @@ pub fn bench_studio(
         });
     let mut rows = Vec::new();
     for panel in panels {
-        set_up_panel(harness.state_mut(), &scene, panel)?;
+        // `puppet:full` is the puppet panel with its 3D view at full size while playing,
+        // for a side-by-side comparison with the default half size on a CPU adapter.
+        let (base, full_3d) = match panel.strip_suffix(":full") {
+            Some(base) => (base, true),
+            None => (panel.as_str(), false),
+        };
+        set_up_panel(harness.state_mut(), &scene, base)?;
+        harness.state_mut().settings.reduce_3d_while_playing = full_3d.then_some(false);
         harness.state_mut().state.playback.playing = true;
         // Warm-up: the first frames upload textures and build pipelines.
         for _ in 0..5 {
