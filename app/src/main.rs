@@ -408,7 +408,7 @@ fn main() -> Result<()> {
                 "studio at {w}x{h}, demo clip playing at a 60 Hz step, {frames} frames per panel"
             );
             println!(
-                "{:<24} {:>8} {:>8} {:>6} {:>7} {:>9} {:>11} {:>9} {:>10}",
+                "{:<24} {:>8} {:>8} {:>6} {:>7} {:>9} {:>11} {:>9} {:>10} {:>10}",
                 "panel",
                 "mean ms",
                 "p95 ms",
@@ -417,11 +417,12 @@ fn main() -> Result<()> {
                 "3D ms",
                 "paint+rb ms",
                 "3D frames",
-                "triangles"
+                "triangles",
+                "covered Mpx"
             );
             for r in &rows {
                 println!(
-                    "{:<24} {:>8.2} {:>8.2} {:>6.1} {:>7.2} {:>9.2} {:>11.2} {:>9} {:>10}",
+                    "{:<24} {:>8.2} {:>8.2} {:>6.1} {:>7.2} {:>9.2} {:>11.2} {:>9} {:>10} {:>10.2}",
                     r.panel,
                     r.mean_ms,
                     r.p95_ms,
@@ -430,7 +431,8 @@ fn main() -> Result<()> {
                     r.views_ms,
                     r.paint_ms,
                     format!("{}/{}", r.frames_with_3d, r.frames),
-                    r.triangles
+                    r.triangles,
+                    r.covered_megapixels
                 );
             }
         }

@@ -257,6 +257,35 @@ pub fn egui_triangles(harness: &Harness<'_, StudioApp>) -> usize {
         .sum()
 }
 
+/// How many pixels egui's triangles of the harness's last frame cover, counting overlaps
+/// (each triangle's area within its clip rectangle's bounds): the fragment work a software
+/// rasteriser does for the UI, in megapixels. A window-sized panel is 0.92 at 1280x720.
+pub fn egui_covered_megapixels(harness: &Harness<'_, StudioApp>) -> f64 {
+    covered_megapixels(&harness.ctx.tessellate(harness.output().shapes.clone(), 1.0))
+}
+
+fn covered_megapixels(primitives: &[egui::ClippedPrimitive]) -> f64 {
+    let mut pixels = 0.0f64;
+    for p in primitives {
+        let egui::epaint::Primitive::Mesh(m) = &p.primitive else {
+            continue;
+        };
+        for t in m.indices.chunks_exact(3) {
+            let [a, b, c] = [t[0], t[1], t[2]].map(|i| m.vertices[i as usize].pos);
+            let bounds = egui::Rect::from_points(&[a, b, c]);
+            let shown = bounds.intersect(p.clip_rect);
+            if !shown.is_positive() {
+                continue;
+            }
+            let area = 0.5 * ((b - a).x * (c - a).y - (b - a).y * (c - a).x).abs() as f64;
+            // Scaled by how much of the bounding box the clip keeps: exact for the
+            // axis-aligned rectangles that carry most of the area.
+            pixels += area * f64::from(shown.area()) / f64::from(bounds.area().max(1e-6));
+        }
+    }
+    pixels / 1e6
+}
+
 /// One line of [`bench_studio`]'s table.
 #[derive(Clone, Debug)]
 pub struct BenchRow {
@@ -275,6 +304,8 @@ pub struct BenchRow {
     pub frames_with_3d: usize,
     /// egui triangles of the last frame.
     pub triangles: usize,
+    /// Pixels those triangles cover, overlaps counted (`egui_covered_megapixels`).
+    pub covered_megapixels: f64,
 }
 
 impl BenchRow {
@@ -367,7 +398,41 @@ pub fn bench_studio(
             paint_ms: paint_ms / n,
             frames_with_3d,
             triangles,
+            covered_megapixels: egui_covered_megapixels(&harness),
         });
     }
     Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn covered_pixels_of_a_clipped_rectangle_and_an_overlap() {
+        let mut mesh = egui::Mesh::default();
+        mesh.add_colored_rect(
+            egui::Rect::from_min_size(egui::pos2(0.0, 0.0), egui::vec2(1000.0, 500.0)),
+            egui::Color32::WHITE,
+        );
+        let clipped = |clip: egui::Rect| egui::ClippedPrimitive {
+            clip_rect: clip,
+            primitive: egui::epaint::Primitive::Mesh(mesh.clone()),
+        };
+        // Clipped to 600 x 500, then drawn again unclipped: 0.3 + 0.5 megapixels.
+        let prims = [
+            clipped(egui::Rect::from_min_size(
+                egui::Pos2::ZERO,
+                egui::vec2(600.0, 800.0),
+            )),
+            clipped(egui::Rect::EVERYTHING),
+        ];
+        let covered = covered_megapixels(&prims);
+        assert!((covered - 0.8).abs() < 1e-9, "{covered}");
+        let outside = clipped(egui::Rect::from_min_size(
+            egui::pos2(2000.0, 0.0),
+            egui::vec2(10.0, 10.0),
+        ));
+        assert_eq!(covered_megapixels(&[outside]), 0.0);
+    }
 }
