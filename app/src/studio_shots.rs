@@ -243,12 +243,20 @@ fn no_error_shown(harness: &Harness<'_, StudioApp>, what: &str) -> Result<()> {
     }
 }
 
+/// egui's tessellation of the harness's last frame: what a software rasteriser draws for
+/// the UI, measured by [`egui_triangles`] and [`covered_megapixels`].
+pub fn last_frame_primitives(harness: &Harness<'_, StudioApp>) -> Vec<egui::ClippedPrimitive> {
+    harness.ctx.tessellate(harness.output().shapes.clone(), 1.0)
+}
+
 /// How many triangles egui tessellates for the harness's last frame: the studio's own
 /// drawing cost on a software rasteriser, which `bench-studio` reports.
 pub fn egui_triangles(harness: &Harness<'_, StudioApp>) -> usize {
-    harness
-        .ctx
-        .tessellate(harness.output().shapes.clone(), 1.0)
+    triangles(&last_frame_primitives(harness))
+}
+
+fn triangles(primitives: &[egui::ClippedPrimitive]) -> usize {
+    primitives
         .iter()
         .map(|p| match &p.primitive {
             egui::epaint::Primitive::Mesh(m) => m.indices.len() / 3,
@@ -257,13 +265,9 @@ pub fn egui_triangles(harness: &Harness<'_, StudioApp>) -> usize {
         .sum()
 }
 
-/// How many pixels egui's triangles of the harness's last frame cover, counting overlaps
-/// (each triangle's area within its clip rectangle's bounds): the fragment work a software
-/// rasteriser does for the UI, in megapixels. A window-sized panel is 0.92 at 1280x720.
-pub fn egui_covered_megapixels(harness: &Harness<'_, StudioApp>) -> f64 {
-    covered_megapixels(&harness.ctx.tessellate(harness.output().shapes.clone(), 1.0))
-}
-
+/// How many pixels `primitives` cover, counting overlaps (each triangle's area within its
+/// clip rectangle's bounds): the fragment work a software rasteriser does for the UI, in
+/// megapixels. A window-sized panel is 0.92 at 1280x720.
 fn covered_megapixels(primitives: &[egui::ClippedPrimitive]) -> f64 {
     let mut pixels = 0.0f64;
     for p in primitives {
@@ -304,7 +308,7 @@ pub struct BenchRow {
     pub frames_with_3d: usize,
     /// egui triangles of the last frame.
     pub triangles: usize,
-    /// Pixels those triangles cover, overlaps counted (`egui_covered_megapixels`).
+    /// Pixels those triangles cover, overlaps counted (`covered_megapixels`).
     pub covered_megapixels: f64,
 }
 
@@ -385,7 +389,7 @@ pub fn bench_studio(
             }
         }
         no_error_shown(&harness, panel)?;
-        let triangles = egui_triangles(&harness);
+        let primitives = last_frame_primitives(&harness);
         let n = times.len() as f64;
         times.sort_by(f64::total_cmp);
         rows.push(BenchRow {
@@ -397,8 +401,8 @@ pub fn bench_studio(
             views_ms: views_ms / n,
             paint_ms: paint_ms / n,
             frames_with_3d,
-            triangles,
-            covered_megapixels: egui_covered_megapixels(&harness),
+            triangles: triangles(&primitives),
+            covered_megapixels: covered_megapixels(&primitives),
         });
     }
     Ok(rows)
