@@ -408,7 +408,7 @@ fn main() -> Result<()> {
                 "studio at {w}x{h}, demo clip playing at a 60 Hz step, {frames} frames per panel"
             );
             println!(
-                "{:<24} {:>8} {:>8} {:>6} {:>7} {:>9} {:>11} {:>9} {:>10} {:>10}",
+                "{:<24} {:>8} {:>8} {:>6} {:>7} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}",
                 "panel",
                 "mean ms",
                 "p95 ms",
@@ -418,11 +418,12 @@ fn main() -> Result<()> {
                 "paint+rb ms",
                 "3D frames",
                 "triangles",
-                "covered Mpx"
+                "covered Mpx",
+                "draw calls"
             );
             for r in &rows {
                 println!(
-                    "{:<24} {:>8.2} {:>8.2} {:>6.1} {:>7.2} {:>9.2} {:>11.2} {:>9} {:>10} {:>10.2}",
+                    "{:<24} {:>8.2} {:>8.2} {:>6.1} {:>7.2} {:>9.2} {:>11.2} {:>9} {:>10} {:>10.2} {:>10}",
                     r.panel,
                     r.mean_ms,
                     r.p95_ms,
@@ -432,7 +433,8 @@ fn main() -> Result<()> {
                     r.paint_ms,
                     format!("{}/{}", r.frames_with_3d, r.frames),
                     r.triangles,
-                    r.covered_megapixels
+                    r.covered_megapixels,
+                    r.draw_calls
                 );
             }
         }

@@ -310,6 +310,10 @@ pub struct BenchRow {
     pub triangles: usize,
     /// Pixels those triangles cover, overlaps counted (`covered_megapixels`).
     pub covered_megapixels: f64,
+    /// Clipped primitives of the last frame: egui-wgpu issues one draw (with its own
+    /// scissor rectangle) for each, and on lavapipe each costs about 0.1 ms whatever its
+    /// size (`examples/present_floor.rs`).
+    pub draw_calls: usize,
 }
 
 impl BenchRow {
@@ -403,6 +407,7 @@ pub fn bench_studio(
             frames_with_3d,
             triangles: triangles(&primitives),
             covered_megapixels: covered_megapixels(&primitives),
+            draw_calls: primitives.len(),
         });
     }
     Ok(rows)

@@ -4,7 +4,9 @@
 //! Every case is one frame = record + submit + wait for the device to go idle (no
 //! readback), over all combinations of
 //! - blend path: `prepass` (blend once per weight change into a texture) vs `pervertex`
-//!   (the fallback: every vertex shader blends),
+//!   (the fallback: every vertex shader blends) vs `cpu` (the CPU sums the non-zero deltas
+//!   and uploads that texture; the synthetic shapes move every vertex, the worst case for
+//!   it, where the ICT shapes move a part of the face each),
 //! - MSAA: `msaa4` (default, goldens) vs `msaa1`,
 //! - weights: `changing` (a different set of 53 non-zero weights every frame, so the
 //!   pre-pass runs every frame) vs `static` (set once; the pre-pass is skipped).
@@ -59,7 +61,7 @@ fn bench(c: &mut Criterion) {
     group.warm_up_time(Duration::from_secs(1));
     group.measurement_time(Duration::from_secs(5));
     let mut table = Vec::new();
-    for blend_path in [BlendPath::PrePass, BlendPath::PerVertex] {
+    for blend_path in [BlendPath::PrePass, BlendPath::PerVertex, BlendPath::Cpu] {
         for samples in [4, 1] {
             let mut r = OffscreenRenderer::with_options(
                 &mesh,
@@ -84,6 +86,7 @@ fn bench(c: &mut Criterion) {
             let path = match blend_path {
                 BlendPath::PrePass => "prepass",
                 BlendPath::PerVertex => "pervertex",
+                BlendPath::Cpu => "cpu",
             };
             for changing in [true, false] {
                 let name = format!(

@@ -16,6 +16,15 @@
 // Set per pipeline (see create_pipelines); an override so the unused path compiles away.
 override PER_VERTEX_BLEND: bool = false;
 
+// fs_mesh specialised per pipeline: MESH_MODE fixes the view mode (255: read it from the
+// frame uniform), MESH_CORRECTION whether the albedo correction can apply. A software
+// rasteriser (lavapipe) runs every side of a branch under a lane mask, uniform condition
+// or not, so the general shader pays for every mode's colour maths and texture reads at
+// every pixel; the shaded view, drawn while a clip plays, gets its own pipelines.
+const MESH_MODE_FROM_FRAME: u32 = 255u;
+override MESH_MODE: u32 = 255u;
+override MESH_CORRECTION: bool = true;
+
 // Must match MAX_BLENDSHAPES / 2 on the Rust side: two (index, weight) pairs per vec4.
 const WEIGHT_VEC4S: u32 = 128u;
 
@@ -227,13 +236,14 @@ fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
     let n = normalize(in.normal_view);
     // OBJ uv has its origin bottom-left; textures are stored top row first.
     let tex_uv = vec2<f32>(in.uv.x, 1.0 - in.uv.y);
-    // Sampled unconditionally: implicit-derivative sampling must stay in uniform control flow.
+    // Sampled unconditionally: implicit-derivative sampling must stay in uniform control
+    // flow. The mask and the correction have one mip level, so an explicit level 0 inside
+    // the branches that use them samples the same.
     var albedo = textureSample(albedo_tex, lin_sampler, tex_uv, in.layer).rgb;
-    let mask = textureSample(mask_tex, lin_sampler, tex_uv).r;
-    let correction = textureSample(correction_tex, lin_sampler, tex_uv).rgb;
-    let mode = frame.mode.x;
+    let mode = select(frame.mode.x, MESH_MODE, MESH_MODE != MESH_MODE_FROM_FRAME);
     let flags = frame.mode.y;
-    if (flags & FLAG_HAS_CORRECTION) != 0u && in.layer == frame.counts.w {
+    if MESH_CORRECTION && (flags & FLAG_HAS_CORRECTION) != 0u && in.layer == frame.counts.w {
+        let correction = textureSampleLevel(correction_tex, lin_sampler, tex_uv, 0.0).rgb;
         albedo = clamp(albedo + correction, vec3<f32>(0.0), vec3<f32>(1.0));
     }
     var rgb: vec3<f32>;
@@ -249,6 +259,7 @@ fn fs_mesh(in: MeshOut) -> @location(0) vec4<f32> {
         }
         case MODE_MASK_HEATMAP: {
             if (flags & FLAG_HAS_MASK) != 0u && in.layer == 0u {
+                let mask = textureSampleLevel(mask_tex, lin_sampler, tex_uv, 0.0).r;
                 rgb = turbo(mask) * diagnostic_shade(n);
             } else {
                 rgb = vec3<f32>(0.6) * diagnostic_shade(n);

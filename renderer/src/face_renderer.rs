@@ -54,7 +54,13 @@ struct BlendPrepass {
 struct Pipelines {
     background: wgpu::RenderPipeline,
     depth_prepass: wgpu::RenderPipeline,
+    /// Any view mode, read from the frame uniform.
     mesh: wgpu::RenderPipeline,
+    /// The shaded view only, without and with the albedo correction (`MESH_MODE` in
+    /// face.wgsl): the same pixels as `mesh` in that mode, at a fraction of the shading cost
+    /// on a software rasteriser.
+    mesh_shaded: wgpu::RenderPipeline,
+    mesh_shaded_corrected: wgpu::RenderPipeline,
     lines: wgpu::RenderPipeline,
     landmarks: wgpu::RenderPipeline,
 }
@@ -71,6 +77,12 @@ pub enum BlendPath {
     /// Every vertex shader invocation (per render corner, per pass) blends the active
     /// shapes itself: 2 texel reads per active shape. Slower, works everywhere.
     PerVertex,
+    /// When the weights or the mesh changed, the CPU sums only the non-zero deltas of the
+    /// active shapes and uploads the blended texture that [`Self::PrePass`] would render
+    /// (`cpu_blend.rs`). The choice on a CPU adapter (lavapipe), where the pre-pass shader
+    /// reads every delta of every active shape at every vertex and costs tens of
+    /// milliseconds; the mesh passes are the pre-pass's.
+    Cpu,
 }
 
 /// Construction choices of [`FaceRenderer::with_options`].
@@ -88,12 +100,14 @@ pub struct RenderOptions {
 }
 
 impl RenderOptions {
-    /// The best this adapter supports for `format`: [`msaa_sample_count`] and the pre-pass
-    /// if [`blend_prepass_supported`].
+    /// The best this adapter supports for `format`: [`msaa_sample_count`]; the CPU blend on
+    /// a CPU adapter, else the pre-pass if [`blend_prepass_supported`].
     pub fn for_adapter(adapter: &wgpu::Adapter, format: wgpu::TextureFormat) -> Self {
         Self {
             sample_count: msaa_sample_count(adapter, format),
-            blend_path: if blend_prepass_supported(adapter) {
+            blend_path: if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+                BlendPath::Cpu
+            } else if blend_prepass_supported(adapter) {
                 BlendPath::PrePass
             } else {
                 BlendPath::PerVertex
@@ -160,10 +174,12 @@ pub struct FaceRenderer {
     has_overlay: bool,
     overlay_opacity: f32,
     sampler: wgpu::Sampler,
-    /// Blend pre-pass output, or a 1x1 placeholder on [`BlendPath::PerVertex`] (the bind
-    /// group layout is shared by both paths).
+    /// Blend pre-pass output (or upload on [`BlendPath::Cpu`]), or a 1x1 placeholder on
+    /// [`BlendPath::PerVertex`] (the bind group layout is shared by all paths).
     blended_texture: wgpu::Texture,
     blend_prepass: Option<BlendPrepass>,
+    /// The sparse mesh data of [`BlendPath::Cpu`].
+    cpu_blend: Option<crate::cpu_blend::CpuBlend>,
     /// Set when the weights or the geometry changed since the last recorded blend pass.
     /// Atomic because [`FaceRenderer::render`] takes `&self` (egui callbacks share it).
     blend_dirty: AtomicBool,
@@ -410,7 +426,7 @@ impl FaceRenderer {
         let blended_rows = (2 * counts.vertices as u64).div_ceil(data_width as u64);
         let blended_rows = u32::try_from(blended_rows).unwrap_or(u32::MAX);
         let blended_texture = match blend_path {
-            BlendPath::PrePass => {
+            BlendPath::PrePass | BlendPath::Cpu => {
                 check_texture_fits(device, "blended geometry", data_width, blended_rows, 1)?;
                 device.create_texture(&wgpu::TextureDescriptor {
                     label: Some("face blended geometry"),
@@ -423,8 +439,12 @@ impl FaceRenderer {
                     sample_count: 1,
                     dimension: wgpu::TextureDimension::D2,
                     format: BLENDED_FORMAT,
-                    usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                        | wgpu::TextureUsages::TEXTURE_BINDING,
+                    usage: if blend_path == BlendPath::Cpu {
+                        wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::TEXTURE_BINDING
+                    } else {
+                        wgpu::TextureUsages::RENDER_ATTACHMENT
+                            | wgpu::TextureUsages::TEXTURE_BINDING
+                    },
                     view_formats: &[],
                 })
             }
@@ -528,6 +548,7 @@ impl FaceRenderer {
             sampler,
             blended_texture,
             blend_prepass,
+            cpu_blend: None,
             blend_dirty: AtomicBool::new(true),
             // Matches the zeroed weights buffer: no active shape.
             weights: vec![0.0; counts.shapes as usize],
@@ -542,6 +563,7 @@ impl FaceRenderer {
             attachments: Mutex::new(None),
             content_stamp: new_content_stamp(),
         };
+        let mut renderer = renderer;
         renderer.upload_geometry(queue, mesh);
         tracing::debug!(
             vertices = counts.vertices,
@@ -585,7 +607,7 @@ impl FaceRenderer {
         self.counts.shapes as usize
     }
 
-    fn upload_geometry(&self, queue: &wgpu::Queue, mesh: &MeshData) {
+    fn upload_geometry(&mut self, queue: &wgpu::Queue, mesh: &MeshData) {
         let texels = mesh.data_texels(self.data_width, self.data_rows);
         queue.write_texture(
             self.data_texture.as_image_copy(),
@@ -598,6 +620,29 @@ impl FaceRenderer {
             self.data_texture.size(),
         );
         self.blend_dirty.store(true, Ordering::Release);
+        if self.blend_path == BlendPath::Cpu {
+            self.cpu_blend = Some(crate::cpu_blend::CpuBlend::new(mesh));
+            self.upload_cpu_blend(queue);
+        }
+    }
+
+    /// [`BlendPath::Cpu`]: blends the current weights and uploads the blended texture.
+    fn upload_cpu_blend(&self, queue: &wgpu::Queue) {
+        let Some(blend) = &self.cpu_blend else {
+            return;
+        };
+        let size = self.blended_texture.size();
+        let texels = blend.texels(&self.weights, (size.width * size.height) as usize);
+        queue.write_texture(
+            self.blended_texture.as_image_copy(),
+            bytemuck::cast_slice(&texels),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(size.width * 16),
+                rows_per_image: Some(size.height),
+            },
+            size,
+        );
     }
 
     fn rebuild_bind_group(&mut self) {
@@ -659,6 +704,7 @@ impl FaceRenderer {
             &bytemuck::bytes_of(&uniform)[..used],
         );
         self.blend_dirty.store(true, Ordering::Release);
+        self.upload_cpu_blend(queue);
         self.content_stamp = new_content_stamp();
         Ok(())
     }
@@ -1090,7 +1136,13 @@ impl FaceRenderer {
                 pass.set_pipeline(&self.pipelines.depth_prepass);
                 pass.draw_indexed(0..self.counts.indices, 0, 0..1);
             }
-            pass.set_pipeline(&self.pipelines.mesh);
+            pass.set_pipeline(match params.view {
+                crate::ViewMode::Shaded if self.correction_layer.is_some() => {
+                    &self.pipelines.mesh_shaded_corrected
+                }
+                crate::ViewMode::Shaded => &self.pipelines.mesh_shaded,
+                _ => &self.pipelines.mesh,
+            });
             pass.draw_indexed(0..self.counts.indices, 0, 0..1);
         }
         if params.view == crate::ViewMode::Wireframe && self.edge_index_count > 0 {
@@ -1371,6 +1423,8 @@ fn create_pipelines(
         write_mask: wgpu::ColorWrites,
         /// Whether this pipeline draws the mesh's triangles (and may cull them).
         mesh_triangles: bool,
+        /// Pipeline-overridable constants of the fragment shader.
+        fs_constants: &'a [(&'a str, f64)],
     }
     let make = |v: Variant| {
         device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
@@ -1403,7 +1457,10 @@ fn create_pipelines(
             fragment: Some(wgpu::FragmentState {
                 module,
                 entry_point: Some(v.fs),
-                compilation_options: Default::default(),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: v.fs_constants,
+                    ..Default::default()
+                },
                 targets: &[Some(wgpu::ColorTargetState {
                     format,
                     blend: v.blend,
@@ -1418,6 +1475,22 @@ fn create_pipelines(
     let landmarks = [Some(landmark_layout)];
     use wgpu::CompareFunction::{Always, LessEqual};
     use wgpu::PrimitiveTopology::{LineList, TriangleList};
+    let shaded_mode = f64::from(crate::ViewMode::Shaded.shader_id());
+    let shaded = [("MESH_MODE", shaded_mode), ("MESH_CORRECTION", 0.0)];
+    let shaded_corrected = [("MESH_MODE", shaded_mode), ("MESH_CORRECTION", 1.0)];
+    let mesh_variant = |label, fs_constants| Variant {
+        label,
+        vs: "vs_mesh",
+        fs: "fs_mesh",
+        buffers: &corners,
+        topology: TriangleList,
+        depth_write: true,
+        depth_compare: LessEqual,
+        blend: Some(alpha_blend),
+        write_mask: wgpu::ColorWrites::ALL,
+        mesh_triangles: true,
+        fs_constants,
+    };
     Pipelines {
         background: make(Variant {
             label: "face overlay background",
@@ -1430,6 +1503,7 @@ fn create_pipelines(
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
             mesh_triangles: false,
+            fs_constants: &[],
         }),
         depth_prepass: make(Variant {
             label: "face depth pre-pass",
@@ -1442,20 +1516,15 @@ fn create_pipelines(
             blend: None,
             write_mask: wgpu::ColorWrites::empty(),
             mesh_triangles: true,
+            fs_constants: &[],
         }),
         // LessEqual so that after the pre-pass exactly the front-most surface passes.
-        mesh: make(Variant {
-            label: "face mesh",
-            vs: "vs_mesh",
-            fs: "fs_mesh",
-            buffers: &corners,
-            topology: TriangleList,
-            depth_write: true,
-            depth_compare: LessEqual,
-            blend: Some(alpha_blend),
-            write_mask: wgpu::ColorWrites::ALL,
-            mesh_triangles: true,
-        }),
+        mesh: make(mesh_variant("face mesh", &[])),
+        mesh_shaded: make(mesh_variant("face mesh (shaded)", &shaded)),
+        mesh_shaded_corrected: make(mesh_variant(
+            "face mesh (shaded, corrected albedo)",
+            &shaded_corrected,
+        )),
         lines: make(Variant {
             label: "face wireframe",
             vs: "vs_line",
@@ -1467,6 +1536,7 @@ fn create_pipelines(
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
             mesh_triangles: false,
+            fs_constants: &[],
         }),
         // Landmarks are drawn on top of everything, occluded or not.
         landmarks: make(Variant {
@@ -1480,6 +1550,7 @@ fn create_pipelines(
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
             mesh_triangles: false,
+            fs_constants: &[],
         }),
     }
 }

@@ -8,7 +8,10 @@
 //! render pass over the V mesh vertices at the next frame; frames with unchanged weights
 //! skip it. Where `Rgba32Float` cannot be rendered to (WebGL2 without
 //! `EXT_color_buffer_float`), [`BlendPath::PerVertex`] blends in every vertex shader
-//! instead: same image, more work per frame.
+//! instead: same image, more work per frame. On a CPU adapter (lavapipe),
+//! [`BlendPath::Cpu`] sums only the non-zero deltas on the CPU and uploads the pre-pass's
+//! texture, and the shaded view has fragment-shader pipelines of its own, since a software
+//! rasteriser pays for every branch of a general shader at every pixel.
 //!
 //! It must not do anything else: no UI, no model loading, no ONNX/inference, no knowledge of
 //! the face model beyond its shared SH lighting definition. Input is plain data ([`MeshData`], [`TextureLayers`], weights); the app
@@ -30,6 +33,7 @@
 //! `Rgba8Unorm`): no sRGB conversion anywhere, so pixels match what the model predicts.
 
 mod camera;
+mod cpu_blend;
 mod error;
 mod face_renderer;
 pub mod golden;
@@ -96,7 +100,7 @@ impl ViewMode {
     ];
 
     /// Must match the `MODE_*` constants in `face.wgsl`.
-    fn shader_id(self) -> u32 {
+    pub(crate) fn shader_id(self) -> u32 {
         match self {
             ViewMode::Shaded => 0,
             ViewMode::Albedo => 1,

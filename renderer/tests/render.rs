@@ -422,9 +422,10 @@ fn path_images(
 }
 
 #[test]
-fn per_vertex_fallback_draws_what_the_blend_prepass_draws() {
-    // The fallback is what WebGL2 without EXT_color_buffer_float runs; force it here. Both
-    // paths compute the same sums in the same order, so only float rounding may differ.
+fn per_vertex_and_cpu_blends_draw_what_the_blend_prepass_draws() {
+    // The per-vertex fallback is what WebGL2 without EXT_color_buffer_float runs, the CPU
+    // blend what a CPU adapter runs; force each here. All paths compute the same sums in
+    // the same order, so only float rounding may differ.
     let albedo = checker_albedo(128, 8);
     for (mesh, weights) in [
         (
@@ -451,18 +452,21 @@ fn per_vertex_fallback_draws_what_the_blend_prepass_draws() {
             r
         };
         let prepass = path_images(&mut force(BlendPath::PrePass), &mesh, &weights);
-        let fallback = path_images(&mut force(BlendPath::PerVertex), &mesh, &weights);
-        for (i, (a, b)) in prepass.iter().zip(&fallback).enumerate() {
-            let cmp = compare(a, b, Tolerance::default()).expect("same size");
-            eprintln!(
-                "image {i}: max diff {}, {} pixels outside tolerance",
-                cmp.max_diff, cmp.pixels_outside
-            );
-            assert!(
-                cmp.passes(Tolerance::default()),
-                "image {i}: {}",
-                cmp.pixels_outside
-            );
+        for other in [BlendPath::PerVertex, BlendPath::Cpu] {
+            let images = path_images(&mut force(other), &mesh, &weights);
+            assert_eq!(images.len(), prepass.len());
+            for (i, (a, b)) in prepass.iter().zip(&images).enumerate() {
+                let cmp = compare(a, b, Tolerance::default()).expect("same size");
+                eprintln!(
+                    "{other:?} image {i}: max diff {}, {} pixels outside tolerance",
+                    cmp.max_diff, cmp.pixels_outside
+                );
+                assert!(
+                    cmp.passes(Tolerance::default()),
+                    "{other:?} image {i}: {}",
+                    cmp.pixels_outside
+                );
+            }
         }
     }
     // And the fallback on its own still matches the goldens.
@@ -485,11 +489,16 @@ fn per_vertex_fallback_draws_what_the_blend_prepass_draws() {
 
 #[test]
 fn blend_prepass_runs_only_after_a_change() {
-    let mut r = offscreen(&sphere(), &checker_albedo(64, 4));
-    if r.face.blend_path() != BlendPath::PrePass {
-        eprintln!("adapter cannot render Rgba32Float; nothing to test");
-        return;
-    }
+    // Forced: a CPU adapter's default is the CPU blend (tested below).
+    let mut r = OffscreenRenderer::with_options(
+        &sphere(),
+        &checker_albedo(64, 4),
+        OffscreenOptions {
+            blend_path: Some(BlendPath::PrePass),
+            ..Default::default()
+        },
+    )
+    .expect("the blend pre-pass (Rgba32Float render target) on this adapter");
     let p = params(ViewMode::Normals);
     assert!(r.face.blend_pending(), "the first frame blends");
     let rest = r.render_image(SIZE, SIZE, &p).unwrap();
@@ -511,4 +520,34 @@ fn blend_prepass_runs_only_after_a_change() {
     assert!(r.face.blend_pending());
     let wider = r.render_image(SIZE, SIZE, &p).unwrap();
     assert!(changed_pixels(&again, &wider, 8) > 500);
+}
+
+#[test]
+fn cpu_blend_follows_weight_and_geometry_changes() {
+    let mut r = OffscreenRenderer::with_options(
+        &sphere(),
+        &checker_albedo(64, 4),
+        OffscreenOptions {
+            blend_path: Some(BlendPath::Cpu),
+            ..Default::default()
+        },
+    )
+    .expect("offscreen renderer");
+    assert!(!r.face.blend_pending(), "the CPU blend records no pass");
+    let p = params(ViewMode::Normals);
+    let rest = r.render_image(SIZE, SIZE, &p).unwrap();
+    r.face.set_weights(&r.queue, &[0.0, 0.9]).unwrap();
+    let posed = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert!(changed_pixels(&rest, &posed, 8) >= 500);
+    // Back to the rest weights: the rest picture again.
+    r.face.set_weights(&r.queue, &[0.0, 0.0]).unwrap();
+    let back = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert_eq!(changed_pixels(&rest, &back, 0), 0);
+    // New geometry is blended under the current weights.
+    r.face.set_weights(&r.queue, &[0.0, 0.9]).unwrap();
+    let mut moved = sphere();
+    moved.base_positions.iter_mut().for_each(|p| p[0] *= 1.3);
+    r.face.set_mesh_deltas(&r.queue, &moved).unwrap();
+    let wider = r.render_image(SIZE, SIZE, &p).unwrap();
+    assert!(changed_pixels(&posed, &wider, 8) > 500);
 }
