@@ -416,12 +416,16 @@ impl PuppetPanel {
             // The input frame, fitted into the left half.
             let (rect, _) =
                 ui.allocate_exact_size(egui::vec2(half, view_height), egui::Sense::hover());
-            ui.painter()
-                .rect_filled(rect, 0.0, ui.visuals().extreme_bg_color);
-            if let Some((id, frame_size)) = input {
+            let picture = input.map(|(id, frame_size)| (id, fit_rect(rect, frame_size)));
+            let shown = picture.map_or(egui::Rect::NOTHING, |(_, r)| r);
+            for bar in crate::studio_panels::letterbox_bars(rect, shown) {
+                ui.painter()
+                    .rect_filled(bar, 0.0, ui.visuals().extreme_bg_color);
+            }
+            if let Some((id, picture_rect)) = picture {
                 ui.painter().image(
                     id,
-                    fit_rect(rect, frame_size),
+                    picture_rect,
                     egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
                     egui::Color32::WHITE,
                 );

@@ -702,7 +702,13 @@ impl StudioApp {
             let image = egui::ColorImage::from_rgb(size, frame.as_raw());
             match self.frame_texture.as_mut() {
                 Some((shown, texture)) => {
-                    texture.set(image, egui::TextureOptions::LINEAR);
+                    // Same size (every frame of a clip): overwrite the texture in place; a
+                    // whole `set` makes egui-wgpu allocate a new one for each frame.
+                    if texture.size() == size {
+                        texture.set_partial([0, 0], image, egui::TextureOptions::LINEAR);
+                    } else {
+                        texture.set(image, egui::TextureOptions::LINEAR);
+                    }
                     *shown = k;
                 }
                 None => {

@@ -176,9 +176,59 @@ pub fn fit_rect(available: Rect, frame_size: [u32; 2]) -> Rect {
     Rect::from_center_size(available.center(), size)
 }
 
+/// The parts of `outer` that `inner` (inside it, e.g. from [`fit_rect`]) leaves uncovered:
+/// the bars above, below, left and right of it, without overlaps. A picture is framed by
+/// painting these instead of a full background under it, since on a software rasteriser
+/// every pixel egui fills twice costs its time again.
+pub fn letterbox_bars(outer: Rect, inner: Rect) -> Vec<Rect> {
+    let inner = inner.intersect(outer);
+    if !inner.is_positive() {
+        return vec![outer];
+    }
+    let bars = [
+        Rect::from_min_max(outer.min, egui::pos2(outer.max.x, inner.min.y)),
+        Rect::from_min_max(egui::pos2(outer.min.x, inner.max.y), outer.max),
+        Rect::from_min_max(
+            egui::pos2(outer.min.x, inner.min.y),
+            egui::pos2(inner.min.x, inner.max.y),
+        ),
+        Rect::from_min_max(
+            egui::pos2(inner.max.x, inner.min.y),
+            egui::pos2(outer.max.x, inner.max.y),
+        ),
+    ];
+    bars.into_iter().filter(|r| r.is_positive()).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn letterbox_bars_cover_exactly_what_the_picture_leaves() {
+        let outer = Rect::from_min_size(egui::pos2(10.0, 20.0), egui::vec2(600.0, 400.0));
+        // A 4:3 frame in a wider area: bars left and right only.
+        let inner = fit_rect(outer, [640, 480]);
+        let bars = letterbox_bars(outer, inner);
+        assert_eq!(bars.len(), 2);
+        let area: f32 = bars.iter().map(|r| r.area()).sum::<f32>() + inner.area();
+        assert!((area - outer.area()).abs() < 1e-2, "{area}");
+        for (i, a) in bars.iter().enumerate() {
+            assert!(!a.intersects(inner.shrink(0.01)));
+            for b in &bars[i + 1..] {
+                assert!(!a.intersects(b.shrink(0.01)));
+            }
+        }
+        // An off-centre picture leaves all four bars; none when it fills the area.
+        let inner = Rect::from_min_size(egui::pos2(20.0, 30.0), egui::vec2(100.0, 100.0));
+        let bars = letterbox_bars(outer, inner);
+        assert_eq!(bars.len(), 4);
+        let area: f32 = bars.iter().map(|r| r.area()).sum::<f32>() + inner.area();
+        assert!((area - outer.area()).abs() < 1e-2, "{area}");
+        assert!(letterbox_bars(outer, outer).is_empty());
+        // No picture: the whole area.
+        assert_eq!(letterbox_bars(outer, Rect::NOTHING), vec![outer]);
+    }
 
     #[test]
     fn playback_keeps_the_footage_rate_and_loops() {
