@@ -675,7 +675,12 @@ fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
         "Export personalized rig",
     ] {
         harness.get_by_label(label).click();
-        harness.run_steps(2);
+        harness.run_steps(1);
+        assert!(
+            harness.state().writes_pending(),
+            "{label}: written in the background"
+        );
+        run_until_writes_end(&mut harness);
         assert!(
             harness.state().state.notices.latest_error().is_none(),
             "{label}: {:?}",
@@ -693,6 +698,25 @@ fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
         face::names::NUM_ARKIT,
         "one morph target per ARKit channel"
     );
+    // A folder that cannot be made (a file is in the way): the error reaches the UI.
+    harness.state_mut().puppet_panel.export_dir =
+        dir.join("live_link_face.csv").display().to_string();
+    harness.get_by_label("Export Live Link CSV").click();
+    harness.run_steps(1);
+    run_until_writes_end(&mut harness);
+    let error = harness
+        .state()
+        .state
+        .notices
+        .latest_error()
+        .map(str::to_owned);
+    assert!(
+        error
+            .as_deref()
+            .is_some_and(|e| e.starts_with("Export Live Link CSV: ")),
+        "{error:?}"
+    );
+    harness.state_mut().state.notices.dismiss_all();
     let _ = std::fs::remove_dir_all(&dir);
 
     // Person B: another person's own blendshapes under the tracked weights.
@@ -739,16 +763,28 @@ impl egui::DroppedFile for DroppedPath {
 }
 
 /// Steps the studio until its footage job has ended (the job runs on its own thread).
-fn run_until_job_ends(harness: &mut Harness<'static, StudioApp>) {
+/// Steps the studio until `busy` is false, failing after `limit_s` seconds.
+fn run_while(
+    harness: &mut Harness<'static, StudioApp>,
+    what: &str,
+    limit_s: u64,
+    busy: impl Fn(&StudioApp) -> bool,
+) {
     let started = std::time::Instant::now();
-    while harness.state().job().is_some() {
-        assert!(
-            started.elapsed().as_secs() < 300,
-            "the footage job did not end"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(50));
+    while busy(harness.state()) {
+        assert!(started.elapsed().as_secs() < limit_s, "{what} did not end");
+        std::thread::sleep(std::time::Duration::from_millis(10));
         harness.step();
     }
+}
+
+/// Steps the studio until its background saves and exports have ended.
+fn run_until_writes_end(harness: &mut Harness<'static, StudioApp>) {
+    run_while(harness, "a background write", 60, StudioApp::writes_pending);
+}
+
+fn run_until_job_ends(harness: &mut Harness<'static, StudioApp>) {
+    run_while(harness, "the footage job", 300, |app| app.job().is_some());
     harness.run_steps(2);
 }
 
@@ -878,6 +914,7 @@ fn a_saved_session_opens_again_with_its_footage_model_and_tracking() {
     std::fs::create_dir_all(&dir).unwrap();
     // Saving adds the extension and leaves no temporary file.
     harness.state_mut().save_session(&dir.join("person"));
+    run_until_writes_end(&mut harness);
     let path = dir.join("person.likeness");
     assert!(
         path.is_file(),

@@ -5,6 +5,7 @@
 //! behaviour (flags, messages, the scripted demo) and none of the model's mathematics,
 //! which live in `face`.
 
+pub mod background;
 pub mod blendshape_panel;
 pub mod colormap;
 pub mod demo;

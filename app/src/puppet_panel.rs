@@ -171,6 +171,15 @@ impl PersonTarget {
     }
 }
 
+/// An export asked for by a button.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ExportRequest {
+    pub kind: ExportKind,
+    /// The button's label, which error messages start with.
+    pub label: &'static str,
+    pub dir: PathBuf,
+}
+
 /// The files the export buttons write.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportKind {
@@ -224,6 +233,9 @@ pub struct PuppetPanel {
     pub export_dir: String,
     /// The last success message (an export, a save).
     pub status: Option<String>,
+    /// An export button was pressed this frame; the studio starts it in the background
+    /// ([`Self::export_job`]) and reports its end in `status`.
+    pub requested_export: Option<ExportRequest>,
     /// The puppet's renderer weights of the last frame shown (tests read them).
     pub shown_weights: Vec<f32>,
     pub shown_pose: Option<PuppetPose>,
@@ -249,6 +261,7 @@ impl Default for PuppetPanel {
             orbit_yaw_deg: 0.0,
             export_dir: "likeness-export".into(),
             status: None,
+            requested_export: None,
             shown_weights: Vec::new(),
             shown_pose: None,
             render_scale: 1.0,
@@ -308,44 +321,21 @@ impl PuppetPanel {
         loaded
     }
 
-    /// Writes one export into `dir` (created if needed) and returns the file written.
-    pub fn export(
+    /// The export of `kind` into `dir` as a job for a background thread: it owns a copy of
+    /// the puppet and its mapping as they are now (later edits do not change it) and
+    /// returns the file written.
+    pub fn export_job(
         &self,
         kind: ExportKind,
-        scene: &Scene,
-        session: &StudioSession,
-        dir: &Path,
-    ) -> Result<PathBuf> {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        let out = dir.join(kind.file_name(self.puppet.as_ref().map(|p| p.path.as_path())));
-        let tracks = session.tracks();
-        match kind {
-            ExportKind::Animation => {
-                let Some(p) = self.puppet.as_ref() else {
-                    bail!("load a puppet to export its animation");
-                };
-                let clip = retarget_clip(&p.retargeter, &tracks);
-                write_animation_glb(&p.puppet, &p.retargeter, &clip, &out)?;
-            }
-            ExportKind::LiveLinkCsv => {
-                let text = match self.puppet.as_ref() {
-                    Some(p) => live_link_csv(&p.retargeter, &tracks),
-                    None => retarget::export::live_link_csv_raw(&tracks),
-                };
-                write_atomically(&out, text.as_bytes())?;
-            }
-            ExportKind::PersonalizedRig => {
-                let rig = PersonalizedRig::new(
-                    &scene.model,
-                    &session.blendshapes,
-                    &session.corrections,
-                    &scene.albedo,
-                    scene.albedo.face(),
-                )?;
-                write_rig_glb(&rig, &out)?;
-            }
-        }
-        Ok(out)
+        scene: Arc<Scene>,
+        session: Arc<StudioSession>,
+        dir: PathBuf,
+    ) -> impl FnOnce() -> Result<PathBuf> + Send + 'static {
+        let puppet = self
+            .puppet
+            .as_ref()
+            .map(|p| (p.path.clone(), p.puppet.clone(), p.retargeter.clone()));
+        move || export(kind, puppet, &scene, &session, &dir)
     }
 
     /// The channel list: each ARKit channel with its calibrated input and the puppet's
@@ -458,7 +448,7 @@ impl PuppetPanel {
                 self.editor_ui(ui, session, frame, &mut error);
             });
             ui.separator();
-            ui.vertical(|ui| self.export_ui(ui, scene, session, &mut error));
+            ui.vertical(|ui| self.export_ui(ui));
         });
         error
     }
@@ -701,13 +691,7 @@ impl PuppetPanel {
         });
     }
 
-    fn export_ui(
-        &mut self,
-        ui: &mut egui::Ui,
-        scene: &Scene,
-        session: &StudioSession,
-        error: &mut Option<String>,
-    ) {
+    fn export_ui(&mut self, ui: &mut egui::Ui) {
         ui.strong("Export");
         ui.horizontal(|ui| {
             let label = ui.label("Folder");
@@ -726,16 +710,55 @@ impl PuppetPanel {
         ] {
             if ui.button(label).clicked() {
                 let dir = PathBuf::from(self.export_dir.trim());
-                match self.export(kind, scene, session, &dir) {
-                    Ok(path) => self.status = Some(format!("wrote {}", path.display())),
-                    Err(e) => *error = Some(format!("{label}: {e:#}")),
-                }
+                self.status = Some(format!("writing {}...", kind.file_name(None)));
+                self.requested_export = Some(ExportRequest { kind, label, dir });
             }
         }
         if let Some(status) = &self.status {
             ui.label(status);
         }
     }
+}
+
+/// Writes one export into `dir` (created if needed) and returns the file written; `puppet`
+/// is the loaded puppet's file, model and retargeter, if one is loaded.
+pub fn export(
+    kind: ExportKind,
+    puppet: Option<(PathBuf, Puppet, Retargeter)>,
+    scene: &Scene,
+    session: &StudioSession,
+    dir: &Path,
+) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let out = dir.join(kind.file_name(puppet.as_ref().map(|p| p.0.as_path())));
+    let tracks = session.tracks();
+    match kind {
+        ExportKind::Animation => {
+            let Some((_, puppet, retargeter)) = puppet.as_ref() else {
+                bail!("load a puppet to export its animation");
+            };
+            let clip = retarget_clip(retargeter, &tracks);
+            write_animation_glb(puppet, retargeter, &clip, &out)?;
+        }
+        ExportKind::LiveLinkCsv => {
+            let text = match puppet.as_ref() {
+                Some((_, _, retargeter)) => live_link_csv(retargeter, &tracks),
+                None => retarget::export::live_link_csv_raw(&tracks),
+            };
+            write_atomically(&out, text.as_bytes())?;
+        }
+        ExportKind::PersonalizedRig => {
+            let rig = PersonalizedRig::new(
+                &scene.model,
+                &session.blendshapes,
+                &session.corrections,
+                &scene.albedo,
+                scene.albedo.face(),
+            )?;
+            write_rig_glb(&rig, &out)?;
+        }
+    }
+    Ok(out)
 }
 
 /// A 0..1 value as a small horizontal bar.

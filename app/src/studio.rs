@@ -2,7 +2,7 @@
 //! (searchable), a view-mode switch and the frame time.
 
 use std::path::PathBuf;
-use std::sync::{Arc, mpsc};
+use std::sync::Arc;
 use std::time::Instant;
 
 use face::{ICT_NAMES, NUM_BLENDSHAPES};
@@ -108,8 +108,8 @@ pub struct StudioApp {
     /// Where a processed session is autosaved ([`autosave_path`] unless a test moves it).
     pub autosave_path: PathBuf,
     job: Option<FootageJob>,
-    /// The autosave of the last processed session, written on its own thread.
-    autosave: Option<mpsc::Receiver<Result<PathBuf, String>>>,
+    /// Files being written on their own threads: saves, the autosave, exports.
+    writes: Vec<(WriteKind, crate::background::BackgroundWrite)>,
     /// `studio --measure-fps`: times the window's frames, then closes it.
     pub fps_probe: Option<crate::fps_probe::FpsProbe>,
     /// The window is cleared to the panel colour before egui paints ([`eframe::App::clear_color`]),
@@ -125,6 +125,14 @@ pub struct StudioApp {
     pub window_on_cpu_adapter: bool,
     /// The shape drawing last applied to the egui context.
     applied_smooth_edges: Option<bool>,
+}
+
+/// What a background write was, for what its end changes in the studio.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum WriteKind {
+    Session,
+    Autosave,
+    Export,
 }
 
 impl StudioApp {
@@ -144,7 +152,7 @@ impl StudioApp {
             session_path: None,
             autosave_path: autosave_path(),
             job: None,
-            autosave: None,
+            writes: Vec::new(),
             fps_probe: None,
             window_cleared_to_panel_colour: false,
             window_on_cpu_adapter: false,
@@ -252,15 +260,57 @@ impl StudioApp {
             return;
         };
         let path = with_session_extension(path);
-        match session.save(&path) {
-            Ok(()) => {
-                self.state
-                    .notices
-                    .message(format!("saved {}", path.display()));
-                self.settings.remember(RecentFile::Session(path.clone()));
-                self.session_path = Some(path);
-            }
+        self.start_write(WriteKind::Session, "session", move || {
+            session.save(&path).map(|()| path)
+        });
+    }
+
+    /// Starts a background write; its end is reported by [`Self::poll_writes`].
+    fn start_write(
+        &mut self,
+        kind: WriteKind,
+        what: &str,
+        job: impl FnOnce() -> Result<PathBuf, String> + Send + 'static,
+    ) {
+        match crate::background::BackgroundWrite::spawn(what, job) {
+            Ok(write) => self.writes.push((kind, write)),
             Err(e) => self.state.notices.error(e),
+        }
+    }
+
+    /// Whether a save, autosave or export is still being written.
+    pub fn writes_pending(&self) -> bool {
+        !self.writes.is_empty()
+    }
+
+    /// Reports the background writes that ended: saved sessions become the current
+    /// session file and a recent file, exports show in the puppet panel.
+    fn poll_writes(&mut self, ctx: &egui::Context) {
+        let mut running = Vec::with_capacity(self.writes.len());
+        for (kind, write) in std::mem::take(&mut self.writes) {
+            let Some(result) = write.poll() else {
+                running.push((kind, write));
+                continue;
+            };
+            match (kind, result) {
+                (WriteKind::Session, Ok(path)) => {
+                    self.state
+                        .notices
+                        .message(format!("saved {}", path.display()));
+                    self.settings.remember(RecentFile::Session(path.clone()));
+                    self.session_path = Some(path);
+                }
+                (WriteKind::Autosave, Ok(path)) => tracing::info!("autosaved {}", path.display()),
+                (WriteKind::Export, Ok(path)) => {
+                    self.puppet_panel.status = Some(format!("wrote {}", path.display()));
+                }
+                (_, Err(e)) => self.state.notices.error(e),
+            }
+        }
+        self.writes = running;
+        if !self.writes.is_empty() {
+            // Nothing else may repaint while a write runs; look again shortly.
+            ctx.request_repaint_after(std::time::Duration::from_millis(50));
         }
     }
 
@@ -284,38 +334,12 @@ impl StudioApp {
     /// Starts writing the autosave of `session` on its own thread.
     fn start_autosave(&mut self, session: Arc<StudioSession>) {
         let path = self.autosave_path.clone();
-        let (sender, receiver) = mpsc::channel();
-        let spawned = std::thread::Builder::new()
-            .name("likeness autosave".into())
-            .spawn(move || {
-                let result = match path.parent().map(std::fs::create_dir_all) {
-                    Some(Err(e)) => Err(format!("autosave: cannot create {}: {e}", path.display())),
-                    _ => session.save(&path).map(|()| path),
-                };
-                let _ = sender.send(result);
-            });
-        match spawned {
-            Ok(_) => self.autosave = Some(receiver),
-            Err(e) => self.state.notices.error(format!("autosave: {e}")),
-        }
-    }
-
-    fn poll_autosave(&mut self) {
-        let Some(receiver) = &self.autosave else {
-            return;
-        };
-        match receiver.try_recv() {
-            Ok(Ok(path)) => {
-                tracing::info!("autosaved {}", path.display());
-                self.autosave = None;
+        self.start_write(WriteKind::Autosave, "autosave", move || {
+            if let Some(Err(e)) = path.parent().map(std::fs::create_dir_all) {
+                return Err(format!("autosave: cannot create {}: {e}", path.display()));
             }
-            Ok(Err(e)) => {
-                self.state.notices.error(e);
-                self.autosave = None;
-            }
-            Err(mpsc::TryRecvError::Empty) => {}
-            Err(mpsc::TryRecvError::Disconnected) => self.autosave = None,
-        }
+            session.save(&path).map(|()| path)
+        });
     }
 
     /// Replaces the session (the puppet, its mapping and person B stay).
@@ -749,6 +773,18 @@ impl StudioApp {
         ) {
             self.state.notices.error(error);
         }
+        if let Some(request) = self.puppet_panel.requested_export.take() {
+            let job = self.puppet_panel.export_job(
+                request.kind,
+                self.scene.clone(),
+                session.clone(),
+                request.dir,
+            );
+            let label = request.label;
+            self.start_write(WriteKind::Export, label, move || {
+                job().map_err(|e| format!("{label}: {e:#}"))
+            });
+        }
         self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
     }
 
@@ -1041,6 +1077,18 @@ impl eframe::App for StudioApp {
         eframe::set_value(storage, SETTINGS_KEY, &self.current_settings());
     }
 
+    /// A save or export still being written when the window closes is finished first:
+    /// the process would otherwise end its thread halfway and the file would be lost.
+    fn on_exit(&mut self) {
+        for (_, write) in std::mem::take(&mut self.writes) {
+            tracing::info!("finishing {} before exit", write.what);
+            match write.wait() {
+                Ok(path) => tracing::info!("wrote {}", path.display()),
+                Err(e) => tracing::error!("{e}"),
+            }
+        }
+    }
+
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         self.state.frame_interval_ms = ui.input(|i| i.unstable_dt) * 1000.0;
         if !self.window_cleared_to_panel_colour {
@@ -1056,7 +1104,7 @@ impl eframe::App for StudioApp {
         }
         self.apply_smooth_edges(ui.ctx());
         self.poll_job();
-        self.poll_autosave();
+        self.poll_writes(ui.ctx());
         self.shortcuts(ui.ctx());
         self.dropped_files(ui.ctx());
         if let Some(session) = self.session.clone() {
