@@ -768,7 +768,7 @@ fn run_while(
     harness: &mut Harness<'static, StudioApp>,
     what: &str,
     limit_s: u64,
-    busy: impl Fn(&StudioApp) -> bool,
+    mut busy: impl FnMut(&StudioApp) -> bool,
 ) {
     let started = std::time::Instant::now();
     while busy(harness.state()) {
@@ -814,10 +814,30 @@ fn dropped_footage_is_tracked_off_the_ui_thread_and_cancel_keeps_the_session() {
         harness.state().job().is_some(),
         "a dropped folder starts a job"
     );
-    // The UI keeps running while the job works: the progress bar is on screen.
+    // The UI keeps running while the job works: the progress bar is on screen, with the
+    // newest tracked frame and its landmarks beside it.
     harness.step();
     assert!(harness.query_by_label("Cancel").is_some());
-    run_until_job_ends(&mut harness);
+    let mut previews = Vec::new();
+    run_while(&mut harness, "the footage job", 300, |app| {
+        if let Some(p) = app.job_preview() {
+            previews.push((p.seen, p.size, p.overlay.detected.len()));
+        }
+        app.job().is_some()
+    });
+    harness.run_steps(2);
+    previews.dedup();
+    eprintln!("previews (frames seen, size, landmarks): {previews:?}");
+    let size = [demo.frames[0].width(), demo.frames[0].height()];
+    assert!(!previews.is_empty(), "a preview was shown while tracking");
+    assert!(
+        previews.iter().all(|p| p.1 == size && p.2 >= 60),
+        "{previews:?}"
+    );
+    assert!(
+        harness.state().job_preview().is_none(),
+        "the preview ends with the job"
+    );
     assert!(
         harness.state().state.notices.latest_error().is_none(),
         "{:?}",

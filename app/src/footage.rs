@@ -4,9 +4,9 @@
 //! pipeline as `likeness personalize`, while the studio shows the progress and can cancel.
 
 use std::ops::ControlFlow;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 use anyhow::{Context, Result, bail};
@@ -15,7 +15,7 @@ use tracking::pipeline::{TrackEvent, Tracker, TrackerConfig};
 use tracking::source::InputSpec;
 
 use crate::scene::Scene;
-use crate::studio_session::StudioSession;
+use crate::studio_session::{FrameOverlay, StudioSession};
 
 /// What to process.
 #[derive(Clone, Debug)]
@@ -47,13 +47,24 @@ pub struct Progress {
     pub total: Option<usize>,
 }
 
+/// The newest frame a job has tracked and what the tracker found in it: the live view of
+/// a webcam while it records, and of any footage while it is tracked.
+#[derive(Clone, Debug)]
+pub struct LivePreview {
+    /// How many frames the job had seen when this one came.
+    pub seen: usize,
+    pub image: image::RgbImage,
+    pub overlay: FrameOverlay,
+}
+
 /// Tracks and personalizes `request.input`. `cancel` is checked between frames; `progress`
-/// hears about every frame and stage.
+/// hears about every frame and stage, `preview` gets every tracked frame.
 pub fn process_footage(
     scene: &Scene,
     request: &FootageRequest,
     cancel: &AtomicBool,
     mut progress: impl FnMut(Progress),
+    mut preview: impl FnMut(LivePreview),
 ) -> Result<StudioSession> {
     let input = request.input.trim();
     let spec = InputSpec::parse(input).with_context(|| format!("cannot open `{input}`"))?;
@@ -94,6 +105,11 @@ pub fn process_footage(
                 let dims = frame.image.dimensions();
                 // One session has one camera: frames of another size (a folder of mixed
                 // images) are left out and counted.
+                preview(LivePreview {
+                    seen,
+                    image: frame.image.clone(),
+                    overlay: FrameOverlay::from_output(&out),
+                });
                 if *size.get_or_insert(dims) != dims {
                     other_size += 1;
                 } else {
@@ -195,6 +211,8 @@ pub struct FootageJob {
     pub input: String,
     pub progress: Progress,
     cancel: Arc<AtomicBool>,
+    /// The newest [`LivePreview`], replaced by each tracked frame and taken by the UI.
+    preview: Arc<Mutex<Option<LivePreview>>>,
     receiver: mpsc::Receiver<JobMessage>,
     thread: Option<JoinHandle<()>>,
 }
@@ -209,15 +227,30 @@ impl FootageJob {
         let (sender, receiver) = mpsc::channel();
         let cancel = Arc::new(AtomicBool::new(false));
         let input = request.input.clone();
+        let preview = Arc::new(Mutex::new(None));
         let thread = {
             let cancel = cancel.clone();
+            let preview_slot = preview.clone();
             std::thread::Builder::new()
                 .name("likeness footage".into())
                 .spawn(move || {
-                    let result = process_footage(&scene, &request, &cancel, |p| {
-                        let _ = sender.send(JobMessage::Progress(p));
-                        repaint();
-                    })
+                    let repaint = &repaint;
+                    let result = process_footage(
+                        &scene,
+                        &request,
+                        &cancel,
+                        |p| {
+                            let _ = sender.send(JobMessage::Progress(p));
+                            repaint();
+                        },
+                        |frame| {
+                            // A poisoned slot means the UI panicked: no one is watching.
+                            if let Ok(mut slot) = preview_slot.lock() {
+                                *slot = Some(frame);
+                            }
+                            repaint();
+                        },
+                    )
                     .map(Box::new)
                     .map_err(|e| format!("{}: {e:#}", request.input));
                     let _ = sender.send(JobMessage::Done(result));
@@ -233,6 +266,7 @@ impl FootageJob {
                 total: None,
             },
             cancel,
+            preview,
             receiver,
             thread: Some(thread),
         })
@@ -245,6 +279,11 @@ impl FootageJob {
 
     pub fn cancelling(&self) -> bool {
         self.cancel.load(Ordering::Relaxed)
+    }
+
+    /// The newest tracked frame since the last call, if one came.
+    pub fn take_preview(&self) -> Option<LivePreview> {
+        self.preview.lock().ok().and_then(|mut slot| slot.take())
     }
 
     /// Takes the news: `Some` once, when the job has ended.

@@ -108,6 +108,8 @@ pub struct StudioApp {
     /// Where a processed session is autosaved ([`autosave_path`] unless a test moves it).
     pub autosave_path: PathBuf,
     job: Option<FootageJob>,
+    /// The running job's newest tracked frame.
+    job_preview: Option<JobPreview>,
     /// Files being written on their own threads: saves, the autosave, exports.
     writes: Vec<(WriteKind, crate::background::BackgroundWrite)>,
     /// `studio --measure-fps`: times the window's frames, then closes it.
@@ -125,6 +127,45 @@ pub struct StudioApp {
     pub window_on_cpu_adapter: bool,
     /// The shape drawing last applied to the egui context.
     applied_smooth_edges: Option<bool>,
+}
+
+fn frame_image(frame: &image::RgbImage) -> egui::ColorImage {
+    let size = [frame.width() as usize, frame.height() as usize];
+    egui::ColorImage::from_rgb(size, frame.as_raw())
+}
+
+fn new_frame_texture(
+    ctx: &egui::Context,
+    name: &str,
+    frame: &image::RgbImage,
+) -> egui::TextureHandle {
+    ctx.load_texture(name, frame_image(frame), egui::TextureOptions::LINEAR)
+}
+
+/// Shows `frame` in `texture`: overwritten in place when the size is unchanged (every frame
+/// of a clip), since a whole `set` makes egui-wgpu allocate a new GPU texture each time.
+fn upload_frame(
+    ctx: &egui::Context,
+    texture: &mut egui::TextureHandle,
+    name: &str,
+    frame: &image::RgbImage,
+) {
+    let image = frame_image(frame);
+    if texture.size() == image.size {
+        texture.set_partial([0, 0], image, egui::TextureOptions::LINEAR);
+    } else {
+        *texture = ctx.load_texture(name, image, egui::TextureOptions::LINEAR);
+    }
+}
+
+/// A running job's newest tracked frame, uploaded for its panel.
+pub struct JobPreview {
+    /// How many frames the job had seen at this one.
+    pub seen: usize,
+    /// The frame's size in pixels.
+    pub size: [u32; 2],
+    texture: egui::TextureHandle,
+    pub overlay: crate::studio_session::FrameOverlay,
 }
 
 /// What a background write was, for what its end changes in the studio.
@@ -152,6 +193,7 @@ impl StudioApp {
             session_path: None,
             autosave_path: autosave_path(),
             job: None,
+            job_preview: None,
             writes: Vec::new(),
             fps_probe: None,
             window_cleared_to_panel_colour: false,
@@ -386,11 +428,36 @@ impl StudioApp {
         self.job.as_ref()
     }
 
-    /// Takes a finished job's session or error.
-    fn poll_job(&mut self) {
+    /// The running job's newest tracked frame, as its panel shows it.
+    pub fn job_preview(&self) -> Option<&JobPreview> {
+        self.job_preview.as_ref()
+    }
+
+    /// Shows the job's newest tracked frame; takes a finished job's session or error.
+    fn poll_job(&mut self, ctx: &egui::Context) {
+        if let Some(frame) = self.job.as_ref().and_then(FootageJob::take_preview) {
+            let size = [frame.image.width(), frame.image.height()];
+            match &mut self.job_preview {
+                Some(shown) => {
+                    upload_frame(ctx, &mut shown.texture, "job preview", &frame.image);
+                    shown.seen = frame.seen;
+                    shown.size = size;
+                    shown.overlay = frame.overlay;
+                }
+                None => {
+                    self.job_preview = Some(JobPreview {
+                        seen: frame.seen,
+                        size,
+                        texture: new_frame_texture(ctx, "job preview", &frame.image),
+                        overlay: frame.overlay,
+                    });
+                }
+            }
+        }
         let Some(result) = self.job.as_mut().and_then(FootageJob::poll) else {
             return;
         };
+        self.job_preview = None;
         let input = self.job.take().map(|j| j.input.clone()).unwrap_or_default();
         match result {
             Ok(session) => {
@@ -428,6 +495,26 @@ impl StudioApp {
         let cancel = if live { "Stop recording" } else { "Cancel" };
         let cancelling = job.cancelling();
         ui.horizontal(|ui| {
+            if let Some(preview) = &self.job_preview {
+                // The live view: the newest tracked frame with what was found in it.
+                let height = 180.0;
+                let width = height * preview.size[0] as f32 / preview.size[1].max(1) as f32;
+                let (rect, _) =
+                    ui.allocate_exact_size(egui::vec2(width, height), egui::Sense::hover());
+                ui.painter().image(
+                    preview.texture.id(),
+                    rect,
+                    egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
+                    egui::Color32::WHITE,
+                );
+                crate::studio_panels::paint_overlay(
+                    ui.painter(),
+                    rect,
+                    preview.size,
+                    &preview.overlay,
+                    &self.state.playback,
+                );
+            }
             ui.label(&job.input);
             ui.add(
                 egui::ProgressBar::new(fraction.clamp(0.0, 1.0))
@@ -717,30 +804,13 @@ impl StudioApp {
         k: usize,
     ) -> Option<egui::TextureId> {
         let frame = session.frames.get(k)?;
-        if self
-            .frame_texture
-            .as_ref()
-            .is_none_or(|(shown, _)| *shown != k)
-        {
-            let size = [frame.width() as usize, frame.height() as usize];
-            let image = egui::ColorImage::from_rgb(size, frame.as_raw());
-            match self.frame_texture.as_mut() {
-                Some((shown, texture)) => {
-                    // Same size (every frame of a clip): overwrite the texture in place; a
-                    // whole `set` makes egui-wgpu allocate a new one for each frame.
-                    if texture.size() == size {
-                        texture.set_partial([0, 0], image, egui::TextureOptions::LINEAR);
-                    } else {
-                        texture.set(image, egui::TextureOptions::LINEAR);
-                    }
-                    *shown = k;
-                }
-                None => {
-                    let texture =
-                        ctx.load_texture("input frame", image, egui::TextureOptions::LINEAR);
-                    self.frame_texture = Some((k, texture));
-                }
+        match &mut self.frame_texture {
+            Some((shown, _)) if *shown == k => {}
+            Some((shown, texture)) => {
+                upload_frame(ctx, texture, "input frame", frame);
+                *shown = k;
             }
+            None => self.frame_texture = Some((k, new_frame_texture(ctx, "input frame", frame))),
         }
         self.frame_texture.as_ref().map(|(_, t)| t.id())
     }
@@ -1103,7 +1173,7 @@ impl eframe::App for StudioApp {
             }
         }
         self.apply_smooth_edges(ui.ctx());
-        self.poll_job();
+        self.poll_job(ui.ctx());
         self.poll_writes(ui.ctx());
         self.shortcuts(ui.ctx());
         self.dropped_files(ui.ctx());

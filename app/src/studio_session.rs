@@ -303,6 +303,27 @@ pub struct FrameOverlay {
     pub confidence: Option<f32>,
 }
 
+impl FrameOverlay {
+    /// The overlay of a frame straight from the tracker (before personalization), as a
+    /// running job shows it.
+    pub fn from_output(out: &tracking::pipeline::FrameOutput) -> Self {
+        let track = out.record.track.as_ref();
+        Self {
+            detected: out
+                .observations
+                .as_ref()
+                .map(|obs| obs.points.iter().map(|p| p.pixel).collect())
+                .unwrap_or_default(),
+            model: track
+                .map(|t| t.landmarks_68.iter().map(|p| Vec2::from(*p)).collect())
+                .unwrap_or_default(),
+            face_box: track.map(|t| t.face_box),
+            crop: out.crop.map(|c| c.to_array()),
+            confidence: track.map(|t| t.confidence),
+        }
+    }
+}
+
 /// Per blendshape, the largest |F(A_i dS_i)| over the vertices, in millimetres.
 pub fn correction_sizes_mm(
     model: &FaceModel,
