@@ -156,3 +156,42 @@ fn personalized_rig_renders_with_its_textures_and_targets() {
         "jawOpen changed only {mouth} pixels of the lower face"
     );
 }
+
+/// The project's puppets have single-sided materials (glTF's default), so the studio culls
+/// their back faces: the culled pictures must be the pictures, posed and turned.
+#[test]
+fn culling_the_back_faces_of_single_sided_puppets_changes_no_picture() {
+    for name in ["pip", "bolt"] {
+        let puppet = Puppet::load(&puppet_path(name)).unwrap_or_else(|e| panic!("{e}"));
+        assert!(puppet.materials.iter().all(|m| !m.double_sided));
+        let retargeter = Retargeter::new(&puppet, &MappingData::default());
+        let view = PuppetView::new(&puppet).unwrap();
+        assert!(view.cull_back_faces, "{name}: single-sided materials");
+        let renderer_with = |cull_back_faces| {
+            OffscreenRenderer::with_options(
+                &view.mesh,
+                &view.textures,
+                renderer::OffscreenOptions {
+                    cull_back_faces,
+                    ..Default::default()
+                },
+            )
+            .unwrap_or_else(|e| panic!("no adapter: {e}"))
+        };
+        let (mut all, mut culled) = (renderer_with(false), renderer_with(true));
+        let mut arkit = [0.0; NUM_ARKIT];
+        arkit[arkit_index("jawOpen").unwrap()] = 0.8;
+        arkit[arkit_index("mouthSmileRight").unwrap()] = 0.6;
+        let pose = retargeter.pose(&arkit, None);
+        for yaw in [0.0, 35.0, -70.0] {
+            let a = render_puppet(&mut all, &view, &pose, yaw, SIZE).unwrap();
+            let b = render_puppet(&mut culled, &view, &pose, yaw, SIZE).unwrap();
+            let cmp = renderer::golden::compare(&a, &b, Tolerance::default()).unwrap();
+            assert!(
+                cmp.passes(Tolerance::default()),
+                "{name} at yaw {yaw}: {} pixels differ",
+                cmp.pixels_outside
+            );
+        }
+    }
+}

@@ -553,7 +553,10 @@ impl PuppetPanel {
                         &rs.device,
                         &rs.queue,
                         VIEW_FORMAT,
-                        interactive_options(rs),
+                        renderer::RenderOptions {
+                            cull_back_faces: p.view.cull_back_faces,
+                            ..interactive_options(rs)
+                        },
                         &p.view.mesh,
                         &p.view.textures,
                     )

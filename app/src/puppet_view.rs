@@ -23,6 +23,10 @@ pub struct PuppetView {
     pub textures: TextureLayers,
     /// Blendshape k of `mesh` is morph target `shapes[k] = (mesh index, target index)`.
     pub shapes: Vec<(usize, usize)>,
+    /// Whether back faces may be culled: no drawn material is double-sided (glTF's
+    /// default), and mirrored nodes have had their triangles re-wound so that fronts stay
+    /// counter-clockwise. Culling halves the triangles a software rasteriser sets up.
+    pub cull_back_faces: bool,
     /// Bounding sphere of the rest pose (world space).
     pub center: Vec3,
     pub radius: f32,
@@ -68,6 +72,7 @@ impl PuppetView {
         let mut mesh = MeshData::default();
         let mut deltas: Vec<Vec<[f32; 3]>> = vec![Vec::new(); shapes.len()];
         let mut normal_deltas: Vec<Vec<[f32; 3]>> = vec![Vec::new(); shapes.len()];
+        let mut double_sided = false;
         for &(n, m) in &drawn {
             // Skinned meshes are in their skeleton's space at rest: no node transform.
             let transform = if puppet.nodes[n].skin.is_some() {
@@ -77,8 +82,23 @@ impl PuppetView {
             };
             let linear = Mat3::from_mat4(transform);
             let normal_matrix = linear.inverse().transpose();
+            // glTF: a node whose transform has a negative determinant (a mirror) flips the
+            // winding of its triangles.
+            let mirrored = linear.determinant() < 0.0;
             for p in &puppet.meshes[m].primitives {
                 let base = mesh.base_positions.len() as u32;
+                double_sided |= p
+                    .material
+                    .and_then(|m| puppet.materials.get(m))
+                    .is_some_and(|m| m.double_sided);
+                let indices: Vec<u32> = if mirrored {
+                    p.indices
+                        .chunks_exact(3)
+                        .flat_map(|t| [t[0], t[2], t[1]])
+                        .collect()
+                } else {
+                    p.indices.clone()
+                };
                 let positions: Vec<Vec3> = p
                     .positions
                     .iter()
@@ -90,7 +110,7 @@ impl PuppetView {
                         .map(|&q| (normal_matrix * Vec3::from(q)).normalize_or_zero())
                         .collect()
                 } else {
-                    normals_of(&positions, &p.indices)
+                    normals_of(&positions, &indices)
                 };
                 for (k, &(sm, st)) in shapes.iter().enumerate() {
                     if sm == m {
@@ -111,7 +131,7 @@ impl PuppetView {
                                 })
                                 .collect()
                         } else {
-                            normals_of(&moved, &p.indices)
+                            normals_of(&moved, &indices)
                         };
                         deltas[k].extend(d.iter().map(|v| v.to_array()));
                         normal_deltas[k].extend(
@@ -135,7 +155,7 @@ impl PuppetView {
                         uv: [uv[0], 1.0 - uv[1]],
                     });
                 }
-                mesh.indices.extend(p.indices.iter().map(|i| base + i));
+                mesh.indices.extend(indices.iter().map(|i| base + i));
                 mesh.base_positions
                     .extend(positions.iter().map(|v| v.to_array()));
                 mesh.base_normals
@@ -157,6 +177,7 @@ impl PuppetView {
             mesh,
             textures: texture_layers(puppet),
             shapes,
+            cull_back_faces: !double_sided,
             center,
             radius,
             node_rest_world: world,
@@ -279,4 +300,88 @@ pub fn render_puppet(
     params.sh_coefficients = face::sh::studio_light();
     params.background = [0.11, 0.12, 0.14, 1.0];
     Ok(renderer.render_image(size.0, size.1, &params)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use retarget::puppet::{Material, Mesh, MorphTarget, Node, Primitive};
+
+    /// One triangle, counter-clockwise seen from +z, under a node scaled by `scale`.
+    fn one_triangle(scale: Vec3, double_sided: bool) -> Puppet {
+        Puppet {
+            path: "triangle.glb".into(),
+            meshes: vec![Mesh {
+                name: "tri".into(),
+                target_names: vec!["open".into()],
+                default_weights: vec![0.0],
+                primitives: vec![Primitive {
+                    positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                    normals: Vec::new(),
+                    uvs: Vec::new(),
+                    indices: vec![0, 1, 2],
+                    joints: Vec::new(),
+                    weights: Vec::new(),
+                    material: Some(0),
+                    targets: vec![MorphTarget {
+                        positions: vec![[0.0; 3], [0.0; 3], [0.0, 0.5, 0.0]],
+                        normals: Vec::new(),
+                    }],
+                }],
+            }],
+            nodes: vec![Node {
+                name: "tri".into(),
+                parent: None,
+                children: Vec::new(),
+                mesh: Some(0),
+                skin: None,
+                translation: Vec3::ZERO,
+                rotation: Quat::IDENTITY,
+                scale,
+            }],
+            skins: Vec::new(),
+            materials: vec![Material {
+                name: "skin".into(),
+                base_color_factor: [1.0; 4],
+                base_color_image: None,
+                double_sided,
+            }],
+            images: Vec::new(),
+            roots: vec![0],
+            vrm: None,
+            extensions_used: Vec::new(),
+        }
+    }
+
+    /// The triangle's normal from its winding, (b - a) x (c - a).
+    fn wound_normal(view: &PuppetView) -> Vec3 {
+        let corner = |i: usize| {
+            let v = view.mesh.corners[view.mesh.indices[i] as usize].vertex as usize;
+            Vec3::from(view.mesh.base_positions[v])
+        };
+        (corner(1) - corner(0)).cross(corner(2) - corner(0))
+    }
+
+    #[test]
+    fn mirrored_nodes_keep_fronts_counter_clockwise_and_double_sided_stops_culling() {
+        let plain = PuppetView::new(&one_triangle(Vec3::ONE, false)).unwrap();
+        assert!(plain.cull_back_faces);
+        assert!(wound_normal(&plain).z > 0.0);
+        // Mirrored in x: the positions flip, the winding is re-ordered, and the front
+        // (counter-clockwise side) still faces +z, where the computed normal points.
+        let mirrored = PuppetView::new(&one_triangle(Vec3::new(-1.0, 1.0, 1.0), false)).unwrap();
+        assert_eq!(mirrored.mesh.base_positions[1], [-1.0, 0.0, 0.0]);
+        assert!(wound_normal(&mirrored).z > 0.0);
+        assert!(
+            mirrored.mesh.base_normals[0][2] > 0.99,
+            "{:?}",
+            mirrored.mesh.base_normals
+        );
+        assert!(mirrored.cull_back_faces);
+        let double = PuppetView::new(&one_triangle(Vec3::ONE, true)).unwrap();
+        assert!(
+            !double.cull_back_faces,
+            "a double-sided material is drawn from both sides"
+        );
+    }
 }

@@ -91,6 +91,9 @@ pub struct Material {
     pub base_color_factor: [f32; 4],
     /// Index into [`Puppet::images`].
     pub base_color_image: Option<usize>,
+    /// glTF `doubleSided`: back faces are drawn too. When false (the default) a viewer
+    /// culls them.
+    pub double_sided: bool,
 }
 
 /// A decoded image, RGBA8.
@@ -246,6 +249,7 @@ impl Puppet {
                         .base_color_texture()
                         .map(|t| t.texture().source().index())
                         .filter(|&i| i < images.len()),
+                    double_sided: m.double_sided(),
                 }
             })
             .collect();
