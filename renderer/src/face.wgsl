@@ -4,7 +4,8 @@
 // lives in one Rgba32Float data texture read with textureLoad by vertex index, and the
 // active blendshape weights arrive as a compact (index, weight) list in a uniform buffer.
 //
-// Two ways to apply the weights (BlendPath on the Rust side):
+// Ways to apply the weights (BlendPath on the Rust side; the CPU path fills blended_tex
+// with an upload instead of fs_blend and draws like the pre-pass):
 // - pre-pass (default): fs_blend renders the blended position and normal of every mesh
 //   vertex into an Rgba32Float target (blended_tex) once per weight change, and the mesh
 //   vertex shaders just load them. Blending costs O(V K) per change instead of
