@@ -609,16 +609,7 @@ impl FaceRenderer {
 
     fn upload_geometry(&mut self, queue: &wgpu::Queue, mesh: &MeshData) {
         let texels = mesh.data_texels(self.data_width, self.data_rows);
-        queue.write_texture(
-            self.data_texture.as_image_copy(),
-            bytemuck::cast_slice(&texels),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(self.data_width * 16),
-                rows_per_image: Some(self.data_rows),
-            },
-            self.data_texture.size(),
-        );
+        write_rgba32f(queue, &self.data_texture, &texels);
         self.blend_dirty.store(true, Ordering::Release);
         if self.blend_path == BlendPath::Cpu {
             self.cpu_blend = Some(crate::cpu_blend::CpuBlend::new(mesh));
@@ -633,16 +624,7 @@ impl FaceRenderer {
         };
         let size = self.blended_texture.size();
         let texels = blend.texels(&self.weights, (size.width * size.height) as usize);
-        queue.write_texture(
-            self.blended_texture.as_image_copy(),
-            bytemuck::cast_slice(&texels),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(size.width * 16),
-                rows_per_image: Some(size.height),
-            },
-            size,
-        );
+        write_rgba32f(queue, &self.blended_texture, &texels);
     }
 
     fn rebuild_bind_group(&mut self) {
@@ -1553,6 +1535,22 @@ fn create_pipelines(
             fs_constants: &[],
         }),
     }
+}
+
+/// Fills a whole `Rgba32Float` texture (the data and blended geometry textures) with
+/// `texels`, row-major, one `[f32; 4]` per texel.
+fn write_rgba32f(queue: &wgpu::Queue, texture: &wgpu::Texture, texels: &[[f32; 4]]) {
+    let size = texture.size();
+    queue.write_texture(
+        texture.as_image_copy(),
+        bytemuck::cast_slice(texels),
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(size.width * 16),
+            rows_per_image: Some(size.height),
+        },
+        size,
+    );
 }
 
 fn create_albedo_texture(

@@ -421,6 +421,22 @@ fn path_images(
     out
 }
 
+/// A renderer on `blend_path` whatever the adapter would choose (the pre-pass needs an
+/// `Rgba32Float` render target, which this adapter must have).
+fn forced(mesh: &MeshData, albedo: &TextureLayers, blend_path: BlendPath) -> OffscreenRenderer {
+    let r = OffscreenRenderer::with_options(
+        mesh,
+        albedo,
+        OffscreenOptions {
+            blend_path: Some(blend_path),
+            ..Default::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("offscreen renderer on {blend_path:?}: {e}"));
+    assert_eq!(r.face.blend_path(), blend_path);
+    r
+}
+
 #[test]
 fn per_vertex_and_cpu_blends_draw_what_the_blend_prepass_draws() {
     // The per-vertex fallback is what WebGL2 without EXT_color_buffer_float runs, the CPU
@@ -438,19 +454,7 @@ fn per_vertex_and_cpu_blends_draw_what_the_blend_prepass_draws() {
             vec![(0..12).map(|k| 0.9 - 0.15 * k as f32).collect()],
         ),
     ] {
-        let force = |blend_path| {
-            let r = OffscreenRenderer::with_options(
-                &mesh,
-                &albedo,
-                OffscreenOptions {
-                    blend_path: Some(blend_path),
-                    ..Default::default()
-                },
-            )
-            .expect("offscreen renderer");
-            assert_eq!(r.face.blend_path(), blend_path);
-            r
-        };
+        let force = |blend_path| forced(&mesh, &albedo, blend_path);
         let prepass = path_images(&mut force(BlendPath::PrePass), &mesh, &weights);
         for other in [BlendPath::PerVertex, BlendPath::Cpu] {
             let images = path_images(&mut force(other), &mesh, &weights);
@@ -470,15 +474,7 @@ fn per_vertex_and_cpu_blends_draw_what_the_blend_prepass_draws() {
         }
     }
     // And the fallback on its own still matches the goldens.
-    let mut r = OffscreenRenderer::with_options(
-        &sphere(),
-        &albedo,
-        OffscreenOptions {
-            blend_path: Some(BlendPath::PerVertex),
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let mut r = forced(&sphere(), &albedo, BlendPath::PerVertex);
     r.face.set_weights(&r.queue, &[0.5, 1.0]).unwrap();
     for view in [ViewMode::Shaded, ViewMode::Normals, ViewMode::Wireframe] {
         let img = r.render_image(SIZE, SIZE, &params(view)).unwrap();
@@ -490,15 +486,7 @@ fn per_vertex_and_cpu_blends_draw_what_the_blend_prepass_draws() {
 #[test]
 fn blend_prepass_runs_only_after_a_change() {
     // Forced: a CPU adapter's default is the CPU blend (tested below).
-    let mut r = OffscreenRenderer::with_options(
-        &sphere(),
-        &checker_albedo(64, 4),
-        OffscreenOptions {
-            blend_path: Some(BlendPath::PrePass),
-            ..Default::default()
-        },
-    )
-    .expect("the blend pre-pass (Rgba32Float render target) on this adapter");
+    let mut r = forced(&sphere(), &checker_albedo(64, 4), BlendPath::PrePass);
     let p = params(ViewMode::Normals);
     assert!(r.face.blend_pending(), "the first frame blends");
     let rest = r.render_image(SIZE, SIZE, &p).unwrap();
@@ -524,15 +512,7 @@ fn blend_prepass_runs_only_after_a_change() {
 
 #[test]
 fn cpu_blend_follows_weight_and_geometry_changes() {
-    let mut r = OffscreenRenderer::with_options(
-        &sphere(),
-        &checker_albedo(64, 4),
-        OffscreenOptions {
-            blend_path: Some(BlendPath::Cpu),
-            ..Default::default()
-        },
-    )
-    .expect("offscreen renderer");
+    let mut r = forced(&sphere(), &checker_albedo(64, 4), BlendPath::Cpu);
     assert!(!r.face.blend_pending(), "the CPU blend records no pass");
     let p = params(ViewMode::Normals);
     let rest = r.render_image(SIZE, SIZE, &p).unwrap();
