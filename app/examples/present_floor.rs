@@ -70,17 +70,7 @@ fn main() -> eframe::Result {
     let report = probe.report.clone();
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Wgpu,
-        wgpu_options: egui_wgpu::WgpuConfiguration {
-            surface: egui_wgpu::SurfaceConfig {
-                present_mode: if vsync {
-                    wgpu::PresentMode::AutoVsync
-                } else {
-                    wgpu::PresentMode::AutoNoVsync
-                },
-                ..egui_wgpu::WgpuConfiguration::default().surface
-            },
-            ..Default::default()
-        },
+        wgpu_options: likeness::studio_shots::window_wgpu_configuration(vsync),
         viewport: egui::ViewportBuilder::default().with_inner_size([w, h]),
         dithering,
         ..Default::default()

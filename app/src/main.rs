@@ -521,17 +521,7 @@ fn run_studio(
     let scene = Arc::new(scene);
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Wgpu,
-        wgpu_options: egui_wgpu::WgpuConfiguration {
-            surface: egui_wgpu::SurfaceConfig {
-                present_mode: if vsync {
-                    wgpu::PresentMode::AutoVsync
-                } else {
-                    wgpu::PresentMode::AutoNoVsync
-                },
-                ..egui_wgpu::WgpuConfiguration::default().surface
-            },
-            ..Default::default()
-        },
+        wgpu_options: likeness::studio_shots::window_wgpu_configuration(vsync),
         viewport: egui::ViewportBuilder::default()
             .with_title("Likeness studio")
             .with_inner_size([size.0 as f32, size.1 as f32]),

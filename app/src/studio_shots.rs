@@ -235,6 +235,22 @@ pub fn window_renderer_options() -> egui_wgpu::RendererOptions {
     }
 }
 
+/// The native window's wgpu configuration: the studio's and `examples/present_floor.rs`'s,
+/// so the floor measures the same presentation.
+pub fn window_wgpu_configuration(vsync: bool) -> egui_wgpu::WgpuConfiguration {
+    egui_wgpu::WgpuConfiguration {
+        surface: egui_wgpu::SurfaceConfig {
+            present_mode: if vsync {
+                wgpu::PresentMode::AutoVsync
+            } else {
+                wgpu::PresentMode::AutoNoVsync
+            },
+            ..egui_wgpu::WgpuConfiguration::default().surface
+        },
+        ..Default::default()
+    }
+}
+
 /// Fails with the studio's latest error, if it shows one, naming `what` was being drawn.
 fn no_error_shown(harness: &Harness<'_, StudioApp>, what: &str) -> Result<()> {
     match harness.state().state.notices.latest_error() {
