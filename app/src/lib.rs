@@ -22,6 +22,8 @@ pub mod puppet_view;
 pub mod retarget_cli;
 pub mod scene;
 pub mod settings;
+#[cfg(not(target_arch = "wasm32"))]
+pub mod soft_window;
 pub mod studio;
 pub mod studio_panels;
 pub mod studio_session;

@@ -7,6 +7,7 @@ use likeness::demo::DemoConfig;
 use likeness::headless::{
     ensure_output_folder, offscreen, render_view, save_png, write_demo_views, write_session_views,
 };
+use likeness::settings::STUDIO_APP_ID;
 use likeness::scene::{Orbit, Scene, StudioView, parse_weights};
 use likeness::studio::StudioApp;
 use likeness::studio_session::StudioSession;
@@ -53,6 +54,12 @@ enum Command {
         /// GPU); the File menu has the same choice.
         #[arg(long)]
         reduce_3d_while_playing: Option<bool>,
+        /// How frames reach the window: `swapchain` (eframe's wgpu surface), `software`
+        /// (drawn offscreen and shown through shared memory; for CPU adapters, whose
+        /// swapchain may copy every frame through the X socket), or `auto` (software on a
+        /// CPU adapter, else swapchain). --vsync applies to the swapchain only.
+        #[arg(long, value_enum, default_value_t = Present::Auto)]
+        present: Present,
     },
     /// Write the demo's views to PNG files without opening a window.
     Demo {
@@ -290,6 +297,7 @@ fn main() -> Result<()> {
         size: "1280x800".into(),
         vsync: None,
         reduce_3d_while_playing: None,
+        present: Present::Auto,
     });
     let load_scene = || Scene::load(cli.facemodel.as_deref());
     match command {
@@ -360,6 +368,7 @@ fn main() -> Result<()> {
             size,
             vsync,
             reduce_3d_while_playing,
+            present,
             ..
         } => {
             let size = parse_size(&size)?;
@@ -371,7 +380,13 @@ fn main() -> Result<()> {
                 None => None,
             };
             let vsync = vsync.unwrap_or(measure.is_none());
-            run_studio(load_scene()?, size, vsync, measure, reduce_3d_while_playing)?
+            let window = StudioWindow {
+                size,
+                vsync,
+                present,
+                reduce_3d_while_playing,
+            };
+            run_studio(load_scene()?, window, measure)?
         }
         Command::Demo { out, .. } => {
             report_written(&write_all_demo_views(load_scene()?, &out)?);
@@ -505,86 +520,130 @@ fn write_all_demo_views(scene: Scene, out: &std::path::Path) -> Result<Vec<PathB
     Ok(written)
 }
 
-/// Opens the studio window on the demo. With `measure` (panel, seconds) the window plays
-/// that panel, prints its frame times and closes.
-fn run_studio(
-    scene: Scene,
+/// How the studio's frames reach the window (`likeness studio --present`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Present {
+    Auto,
+    Swapchain,
+    Software,
+}
+
+/// The window the studio opens.
+struct StudioWindow {
     size: (u32, u32),
     vsync: bool,
-    measure: Option<(String, f64)>,
+    present: Present,
     reduce_3d_while_playing: Option<bool>,
-) -> Result<()> {
+}
+
+/// The adapter the software window draws with, when `present` chooses it: always for
+/// `software`, and for `auto` when the adapter is a CPU one.
+fn software_render_state(present: Present) -> Result<Option<egui_wgpu::RenderState>> {
+    if present == Present::Swapchain {
+        return Ok(None);
+    }
+    let options = likeness::studio_shots::window_renderer_options();
+    let mut render_state = match likeness::studio_shots::headless_render_state(options) {
+        Ok(rs) => rs,
+        // eframe's own window reports the missing adapter in its words.
+        Err(_) if present == Present::Auto => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    let on_cpu = render_state.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+    if present == Present::Auto && !on_cpu {
+        return Ok(None);
+    }
+    likeness::soft_window::retarget_for_soft_window(&mut render_state, options);
+    Ok(Some(render_state))
+}
+
+/// Opens the studio window on the demo. With `measure` (panel, seconds) the window plays
+/// that panel, prints its frame times and closes.
+fn run_studio(scene: Scene, window: StudioWindow, measure: Option<(String, f64)>) -> Result<()> {
     let session = demo_session(&scene);
     if measure.is_some() && session.is_err() {
         return session.map(|_| ()).context("the demo could not be built");
     }
     let scene = Arc::new(scene);
-    let options = eframe::NativeOptions {
-        renderer: eframe::Renderer::Wgpu,
-        wgpu_options: likeness::studio_shots::window_wgpu_configuration(vsync),
-        viewport: egui::ViewportBuilder::default()
-            .with_title("Likeness studio")
-            .with_inner_size([size.0 as f32, size.1 as f32]),
-        dithering: likeness::studio_shots::window_renderer_options().dithering,
-        ..Default::default()
-    };
+    let size = window.size;
+    let reduce_3d_while_playing = window.reduce_3d_while_playing;
+    let viewport = egui::ViewportBuilder::default()
+        .with_title(STUDIO_APP_ID)
+        .with_inner_size([size.0 as f32, size.1 as f32]);
     let report = Arc::new(std::sync::Mutex::new(None));
     let report_slot = report.clone();
     let setup_error = Arc::new(std::sync::Mutex::new(None::<String>));
     let setup_slot = setup_error.clone();
-    eframe::run_native(
-        "Likeness studio",
-        options,
-        Box::new(move |cc| {
-            let app = StudioApp::new(cc, scene.clone());
-            let mut app = match session {
-                Ok(session) => app.with_session(session),
-                Err(e) => {
-                    let mut app = app;
-                    app.state
-                        .notices
-                        .error(format!("the demo could not be built: {e:#}"));
-                    app
+    let create = move |cc: &eframe::CreationContext<'_>| -> Box<dyn eframe::App> {
+        let app = StudioApp::new(cc, scene.clone());
+        let mut app = match session {
+            Ok(session) => app.with_session(session),
+            Err(e) => {
+                let mut app = app;
+                app.state
+                    .notices
+                    .error(format!("the demo could not be built: {e:#}"));
+                app
+            }
+        };
+        app.window_cleared_to_panel_colour = true;
+        app.window_on_cpu_adapter = cc
+            .wgpu_render_state
+            .as_ref()
+            .is_some_and(|rs| rs.adapter.get_info().device_type == wgpu::DeviceType::Cpu);
+        if reduce_3d_while_playing.is_some() {
+            app.settings.reduce_3d_while_playing = reduce_3d_while_playing;
+        }
+        if let Some((panel, secs)) = measure {
+            if let Err(e) = likeness::studio_shots::set_up_panel(&mut app, &scene, &panel) {
+                if let Ok(mut slot) = setup_slot.lock() {
+                    *slot = Some(format!("{e:#}"));
                 }
+                cc.egui_ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+            }
+            app.state.playback.playing = true;
+            let mut probe = likeness::fps_probe::FpsProbe::new(
+                &panel,
+                std::time::Duration::from_secs(3),
+                std::time::Duration::from_secs_f64(secs),
+            );
+            probe.report = report_slot;
+            app.fps_probe = Some(probe);
+        }
+        Box::new(app)
+    };
+    let presented = match software_render_state(window.present)? {
+        Some(render_state) => {
+            likeness::soft_window::run_soft_window(STUDIO_APP_ID, viewport, render_state, create)
+                .context("cannot run the studio window")?;
+            "software".to_string()
+        }
+        None => {
+            let options = eframe::NativeOptions {
+                renderer: eframe::Renderer::Wgpu,
+                wgpu_options: likeness::studio_shots::window_wgpu_configuration(window.vsync),
+                viewport,
+                dithering: likeness::studio_shots::window_renderer_options().dithering,
+                ..Default::default()
             };
-            app.window_cleared_to_panel_colour = true;
-            app.window_on_cpu_adapter = cc
-                .wgpu_render_state
-                .as_ref()
-                .is_some_and(|rs| rs.adapter.get_info().device_type == wgpu::DeviceType::Cpu);
-            if reduce_3d_while_playing.is_some() {
-                app.settings.reduce_3d_while_playing = reduce_3d_while_playing;
-            }
-            if let Some((panel, secs)) = measure {
-                if let Err(e) = likeness::studio_shots::set_up_panel(&mut app, &scene, &panel) {
-                    if let Ok(mut slot) = setup_slot.lock() {
-                        *slot = Some(format!("{e:#}"));
-                    }
-                    cc.egui_ctx.send_viewport_cmd(egui::ViewportCommand::Close);
-                }
-                app.state.playback.playing = true;
-                let mut probe = likeness::fps_probe::FpsProbe::new(
-                    &panel,
-                    std::time::Duration::from_secs(3),
-                    std::time::Duration::from_secs_f64(secs),
-                );
-                probe.report = report_slot;
-                app.fps_probe = Some(probe);
-            }
-            Ok(Box::new(app))
-        }),
-    )
-    .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))?;
+            eframe::run_native(
+                STUDIO_APP_ID,
+                options,
+                Box::new(move |cc| Ok(create(cc))),
+            )
+            .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))?;
+            format!("swapchain, vsync {}", if window.vsync { "on" } else { "off" })
+        }
+    };
     if let Some(e) = setup_error.lock().ok().and_then(|mut e| e.take()) {
         bail!(e);
     }
     if let Some(r) = report.lock().ok().and_then(|mut r| r.take()) {
         println!(
-            "studio window {}x{} (vsync {}, half-size 3D while playing {}), panel {}, \
+            "studio window {}x{} (present {presented}, half-size 3D while playing {}), panel {}, \
              demo clip playing: {} frames in {:.1} s",
             size.0,
             size.1,
-            if vsync { "on" } else { "off" },
             match reduce_3d_while_playing {
                 Some(true) => "on",
                 Some(false) => "off",

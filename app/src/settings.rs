@@ -88,10 +88,14 @@ impl Settings {
     }
 }
 
+/// The studio's application id: its window title and the name of its data folder
+/// (settings in `app.ron`, the autosave).
+pub const STUDIO_APP_ID: &str = "Likeness studio";
+
 /// Where the studio autosaves the last processed session: the platform's data folder for
 /// the app (the same eframe uses for its settings), or the system temp folder.
 pub fn autosave_path() -> PathBuf {
-    eframe::storage_dir("Likeness studio")
+    eframe::storage_dir(STUDIO_APP_ID)
         .unwrap_or_else(|| std::env::temp_dir().join("likeness"))
         .join("autosave.likeness")
 }
