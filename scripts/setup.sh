@@ -4,9 +4,10 @@
 set -euo pipefail
 
 need=()
-# Mesa's lavapipe: the Vulkan driver headless rendering and the screenshot tests run on.
+# Mesa's lavapipe: the Vulkan driver headless rendering and the screenshot tests run on;
+# Xvfb: the display the software-window test opens its window on.
 for pkg in mesa-vulkan-drivers libvulkan1 \
-           libx11-6 libxkbcommon0 libxkbcommon-x11-0 libxcursor1 libxrandr2 libxi6 libwayland-client0 libegl1; do
+           xvfb libx11-6 libxkbcommon0 libxkbcommon-x11-0 libxcursor1 libxrandr2 libxi6 libwayland-client0 libegl1; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || need+=("$pkg")
 done
 # The training tests make a Python venv; Debian's own python3 needs python3-venv for that.

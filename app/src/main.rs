@@ -7,8 +7,8 @@ use likeness::demo::DemoConfig;
 use likeness::headless::{
     ensure_output_folder, offscreen, render_view, save_png, write_demo_views, write_session_views,
 };
-use likeness::settings::STUDIO_APP_ID;
 use likeness::scene::{Orbit, Scene, StudioView, parse_weights};
+use likeness::settings::STUDIO_APP_ID;
 use likeness::studio::StudioApp;
 use likeness::studio_session::StudioSession;
 use likeness::studio_shots::write_studio_panels;
@@ -626,13 +626,12 @@ fn run_studio(scene: Scene, window: StudioWindow, measure: Option<(String, f64)>
                 dithering: likeness::studio_shots::window_renderer_options().dithering,
                 ..Default::default()
             };
-            eframe::run_native(
-                STUDIO_APP_ID,
-                options,
-                Box::new(move |cc| Ok(create(cc))),
+            eframe::run_native(STUDIO_APP_ID, options, Box::new(move |cc| Ok(create(cc))))
+                .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))?;
+            format!(
+                "swapchain, vsync {}",
+                if window.vsync { "on" } else { "off" }
             )
-            .map_err(|e| anyhow::anyhow!("cannot open the studio window: {e}"))?;
-            format!("swapchain, vsync {}", if window.vsync { "on" } else { "off" })
         }
     };
     if let Some(e) = setup_error.lock().ok().and_then(|mut e| e.take()) {

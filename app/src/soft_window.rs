@@ -207,9 +207,7 @@ impl SoftWindow {
             animating = viewport.repaint_delay.is_zero();
         }
         let clear = self.app.clear_color(&self.ctx.global_style().visuals);
-        let shapes = self
-            .ctx
-            .tessellate(output.shapes, output.pixels_per_point);
+        let shapes = self.ctx.tessellate(output.shapes, output.pixels_per_point);
         self.paint(
             &shapes,
             &output.textures_delta,

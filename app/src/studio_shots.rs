@@ -136,7 +136,9 @@ fn headless_renderer() -> Result<WgpuTestRenderer> {
 /// filtering for written panels, the window's defaults for the benchmark).
 /// A wgpu adapter and egui renderer without a window: the harness's, `bench-studio`'s and
 /// the software window's (`soft_window`).
-pub fn headless_render_state(options: egui_wgpu::RendererOptions) -> Result<egui_wgpu::RenderState> {
+pub fn headless_render_state(
+    options: egui_wgpu::RendererOptions,
+) -> Result<egui_wgpu::RenderState> {
     let setup = egui_kittest::wgpu::default_wgpu_setup();
     let instance = pollster::block_on(setup.new_instance());
     let render_state = pollster::block_on(egui_wgpu::RenderState::create(
