@@ -1,7 +1,8 @@
 //! The software-presented window (`likeness::soft_window`) end to end, on its own Xvfb
 //! display with lavapipe: what the app paints reaches the window's pixels exactly (an odd
-//! width, so readback rows are padded), the last frame of an animation is shown once the
-//! app goes idle, a click from XTEST reaches the app, a close command ends the loop, and
+//! width, so readback rows are padded), a square moved across the window leaves no trail
+//! (only changed areas are redrawn), the last frame of an animation is shown once the app
+//! goes idle, a click from XTEST reaches the app, a close command ends the loop, and
 //! the app's settings are read from and saved to eframe's `app.ron`.
 //!
 //! Not a libtest harness: winit's event loop must own the main thread and can be created
@@ -20,13 +21,14 @@ const TITLE: &str = "likeness soft window test";
 const APP_ID: &str = "likeness-soft-window-test";
 /// Odd on purpose: 301 * 4 bytes is not a multiple of wgpu's 256-byte copy row.
 const SIZE: [u16; 2] = [301, 157];
-const RED: [u8; 3] = [200, 30, 40];
+const WHITE: [u8; 3] = [255, 255, 255];
 const GREEN: [u8; 3] = [20, 180, 60];
 const BLUE: [u8; 3] = [30, 60, 210];
 const DEADLINE: Duration = Duration::from_secs(60);
 
-/// What the app shows: red while it animates `ANIMATED_FRAMES` frames, then green without
-/// asking for more frames, blue once clicked; it closes when the checker is done.
+/// What the app shows: a white square moving over green for `ANIMATED_FRAMES` frames, then
+/// the same square parked without asking for more frames, all blue once clicked; it closes
+/// when the checker is done.
 const ANIMATED_FRAMES: u32 = 30;
 const PHASE_ANIMATING: u32 = 0;
 const PHASE_IDLE: u32 = 1;
@@ -36,6 +38,7 @@ const PHASE_DONE: u32 = 3;
 struct Probe {
     phase: Arc<AtomicU32>,
     frames: u32,
+    pixels_per_point: Arc<Mutex<f32>>,
     exited: Arc<AtomicU32>,
 }
 
@@ -48,16 +51,22 @@ impl eframe::App for Probe {
         }
         let phase = self.phase.load(Ordering::SeqCst);
         let rect = ui.ctx().content_rect();
-        let colour = match phase {
-            PHASE_ANIMATING => RED,
-            PHASE_IDLE => GREEN,
-            _ => BLUE,
-        };
-        ui.painter().rect_filled(
-            rect,
-            0.0,
-            egui::Color32::from_rgb(colour[0], colour[1], colour[2]),
-        );
+        let colour = |[r, g, b]: [u8; 3]| egui::Color32::from_rgb(r, g, b);
+        if phase <= PHASE_IDLE {
+            ui.painter().rect_filled(rect, 0.0, colour(GREEN));
+            // Its own clip rectangle makes the square a primitive of its own, so moving it
+            // damages only where it was and where it is: the background is not redrawn.
+            let band =
+                egui::Rect::from_min_max(egui::pos2(0.0, 30.0), egui::pos2(rect.max.x, 70.0));
+            ui.painter().with_clip_rect(band).rect_filled(
+                square(self.frames.min(ANIMATED_FRAMES)),
+                0.0,
+                colour(WHITE),
+            );
+        } else {
+            ui.painter().rect_filled(rect, 0.0, colour(BLUE));
+        }
+        *self.pixels_per_point.lock().expect("scale slot") = ui.ctx().pixels_per_point();
         let response = ui.interact(rect, egui::Id::unique("whole window"), egui::Sense::click());
         if response.clicked() && phase == PHASE_IDLE {
             self.phase.store(PHASE_CLICKED, Ordering::SeqCst);
@@ -70,6 +79,12 @@ impl eframe::App for Probe {
         }
     }
 
+    /// Opaque, as the studio's: the window then redraws only what changed (a see-through
+    /// clear colour, eframe's default, makes every frame a full redraw).
+    fn clear_color(&self, _visuals: &egui::Visuals) -> [f32; 4] {
+        [0.0, 0.0, 0.0, 1.0]
+    }
+
     fn save(&mut self, storage: &mut dyn eframe::Storage) {
         storage.set_string("probe", format!("saved after {} frames", self.frames));
     }
@@ -77,6 +92,14 @@ impl eframe::App for Probe {
     fn on_exit(&mut self) {
         self.exited.fetch_add(1, Ordering::SeqCst);
     }
+}
+
+/// Where the moving square is drawn at `frame`, in points.
+fn square(frame: u32) -> egui::Rect {
+    egui::Rect::from_min_size(
+        egui::pos2(10.0 + 7.0 * frame as f32, 40.0),
+        egui::vec2(20.0, 20.0),
+    )
 }
 
 /// The Xvfb server, stopped when dropped.
@@ -148,26 +171,44 @@ fn window_pixels(conn: &impl Connection, window: Window) -> Option<Vec<[u8; 3]>>
     )
 }
 
-/// Waits until every pixel of the window is `colour`; panics with what it saw instead.
-fn wait_for_colour(conn: &impl Connection, window: Window, colour: [u8; 3], what: &str) {
+/// Waits until every pixel of the window is `expected(x, y)`; panics with what it saw.
+fn wait_for(
+    conn: &impl Connection,
+    window: Window,
+    expected: impl Fn(usize, usize) -> [u8; 3],
+    what: &str,
+) {
     let started = Instant::now();
     let mut last = None;
     while started.elapsed() < DEADLINE {
         if let Some(pixels) = window_pixels(conn, window) {
-            let wrong = pixels.iter().filter(|&&p| p != colour).count();
-            if wrong == 0 {
+            let width = usize::from(SIZE[0]);
+            let wrong: Vec<(usize, usize, [u8; 3])> = pixels
+                .iter()
+                .enumerate()
+                .filter_map(|(i, &p)| {
+                    let (x, y) = (i % width, i / width);
+                    (p != expected(x, y)).then_some((x, y, p))
+                })
+                .collect();
+            if wrong.is_empty() {
                 return;
             }
-            last = Some((wrong, pixels[pixels.len() / 2]));
+            last = Some((wrong.len(), wrong[0]));
         }
         std::thread::sleep(Duration::from_millis(50));
     }
     panic!(
-        "{what}: the window never showed {colour:?} everywhere (last: {last:?} wrong pixels, centre)"
+        "{what}: the window never showed what was drawn (last: {last:?} = wrong pixels, first wrong x, y, colour)"
     );
 }
 
-fn checker(display: String, phase: Arc<AtomicU32>, ctx: Arc<Mutex<Option<egui::Context>>>) {
+fn checker(
+    display: String,
+    phase: Arc<AtomicU32>,
+    pixels_per_point: Arc<Mutex<f32>>,
+    ctx: Arc<Mutex<Option<egui::Context>>>,
+) {
     let (conn, screen) = x11rb::connect(Some(&display)).expect("checker connects to Xvfb");
     let root = conn.setup().roots[screen].root;
     let started = Instant::now();
@@ -181,9 +222,24 @@ fn checker(display: String, phase: Arc<AtomicU32>, ctx: Arc<Mutex<Option<egui::C
         );
         std::thread::sleep(Duration::from_millis(50));
     };
-    // The animation ends with a frame that asks for no other: it must still be shown.
-    wait_for_colour(&conn, window, GREEN, "after the animation");
-    assert_eq!(phase.load(Ordering::SeqCst), PHASE_IDLE);
+    // The animation ends with a frame that asks for no other: it must still be shown, with
+    // the square where it stopped and nothing left where it passed.
+    let started = Instant::now();
+    while phase.load(Ordering::SeqCst) != PHASE_IDLE {
+        assert!(started.elapsed() < DEADLINE, "the animation did not end");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let scale = *pixels_per_point.lock().expect("scale slot");
+    let parked = square(ANIMATED_FRAMES) * scale;
+    let in_square = move |x: usize, y: usize| {
+        let centre = egui::pos2(x as f32 + 0.5, y as f32 + 0.5);
+        if parked.contains(centre) {
+            WHITE
+        } else {
+            GREEN
+        }
+    };
+    wait_for(&conn, window, in_square, "after the animation");
     // A click through XTEST, as a user's: pointer to the window's middle, press, release.
     let geometry = conn
         .translate_coordinates(window, root, SIZE[0] as i16 / 2, SIZE[1] as i16 / 2)
@@ -199,7 +255,7 @@ fn checker(display: String, phase: Arc<AtomicU32>, ctx: Arc<Mutex<Option<egui::C
         conn.flush().expect("flush");
         std::thread::sleep(Duration::from_millis(100));
     }
-    wait_for_colour(&conn, window, BLUE, "after the click");
+    wait_for(&conn, window, |_, _| BLUE, "after the click");
     phase.store(PHASE_DONE, Ordering::SeqCst);
     if let Some(ctx) = ctx.lock().expect("context slot").as_ref() {
         ctx.request_repaint();
@@ -232,14 +288,17 @@ fn main() {
     let setting_read = Arc::new(Mutex::new(None));
     let exited = Arc::new(AtomicU32::new(0));
     let ctx_slot = Arc::new(Mutex::new(None));
+    let pixels_per_point = Arc::new(Mutex::new(1.0f32));
     let check = {
         let (display, phase, ctx_slot) = (display.clone(), phase.clone(), ctx_slot.clone());
-        std::thread::spawn(move || checker(display, phase, ctx_slot))
+        let scale = pixels_per_point.clone();
+        std::thread::spawn(move || checker(display, phase, scale, ctx_slot))
     };
     let viewport = egui::ViewportBuilder::default()
         .with_title(TITLE)
         .with_inner_size([f32::from(SIZE[0]), f32::from(SIZE[1])]);
     let app_phase = phase.clone();
+    let app_scale = pixels_per_point.clone();
     let (app_setting, app_exited) = (setting_read.clone(), exited.clone());
     let result =
         likeness::soft_window::run_soft_window(APP_ID, viewport, render_state, move |cc| {
@@ -249,6 +308,7 @@ fn main() {
             Box::new(Probe {
                 phase: app_phase,
                 frames: 0,
+                pixels_per_point: app_scale,
                 exited: app_exited,
             })
         });
@@ -274,5 +334,5 @@ fn main() {
     );
     drop(server);
     let _ = std::fs::remove_dir_all(&data_home);
-    println!("soft window: pixels, idle frame, click, close and settings round trip: ok");
+    println!("soft window: pixels, no trail, idle frame, click, close and settings round trip: ok");
 }

@@ -12,6 +12,7 @@ pub mod demo;
 pub mod fixture;
 pub mod footage;
 pub mod fps_probe;
+pub mod frame_damage;
 pub mod gpu_view;
 pub mod headless;
 pub mod motion_panel;

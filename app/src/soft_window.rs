@@ -18,6 +18,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use crate::frame_damage::{Damage, FrameDamage};
 use egui::{ViewportCommand, ViewportId};
 use winit::application::ApplicationHandler;
 use winit::event::WindowEvent;
@@ -97,6 +98,8 @@ pub fn run_soft_window(
         shown: None,
         in_flight: None,
         spare: Vec::new(),
+        target: None,
+        damage: FrameDamage::default(),
         next_repaint: Some(Instant::now()),
         last_save: Instant::now(),
         error: None,
@@ -127,6 +130,9 @@ struct SoftWindow {
     in_flight: Option<InFlight>,
     /// Targets whose frames have been shown, for reuse.
     spare: Vec<Readback>,
+    target: Option<Target>,
+    /// What changed since the frame in `target`.
+    damage: FrameDamage,
     next_repaint: Option<Instant>,
     last_save: Instant,
     error: Option<SoftWindowError>,
@@ -259,6 +265,34 @@ impl SoftWindow {
         }
         let size = [size.width, size.height];
         let rs = &self.render_state;
+        if self.target.as_ref().is_none_or(|t| t.size != size) {
+            self.target = Some(Target::new(&rs.device, size));
+            self.damage.reset();
+        }
+        let Some(target) = self.target.as_ref() else {
+            return Ok(());
+        };
+        let mut damage = self
+            .damage
+            .next(shapes, textures, pixels_per_point, size, clear);
+        if clear[3] < 1.0 {
+            // A see-through clear colour cannot be painted over the previous frame.
+            damage = Damage::Full;
+        }
+        if damage == Damage::Rects(Vec::new()) {
+            // Nothing changed: the window already shows (or is about to show) this frame.
+            update_textures(rs, textures);
+            free_textures(rs, textures);
+            if !more_coming && let Some(frame) = self.in_flight.take() {
+                self.show(frame)?;
+            }
+            return Ok(());
+        }
+        let drawn = match &damage {
+            Damage::Full => None,
+            Damage::Rects(rects) => Some(redraw_within(shapes, rects, pixels_per_point, clear)),
+        };
+        let shapes = drawn.as_deref().unwrap_or(shapes);
         let readback = match self.spare.iter().position(|r| r.size == size) {
             Some(i) => self.spare.swap_remove(i),
             None => Readback::new(&rs.device, size),
@@ -277,10 +311,15 @@ impl SoftWindow {
             let mut renderer = rs.renderer.write();
             let user_commands =
                 renderer.update_buffers(&rs.device, &rs.queue, &mut encoder, shapes, &screen);
-            let view = readback
+            let view = target
                 .texture
                 .create_view(&wgpu::TextureViewDescriptor::default());
             let [r, g, b, a] = clear.map(f64::from);
+            let load = match damage {
+                Damage::Full => wgpu::LoadOp::Clear(wgpu::Color { r, g, b, a }),
+                // The damaged rectangles clear themselves (`redraw_within`).
+                Damage::Rects(_) => wgpu::LoadOp::Load,
+            };
             let mut pass = encoder
                 .begin_render_pass(&wgpu::RenderPassDescriptor {
                     label: Some("soft window egui"),
@@ -289,7 +328,7 @@ impl SoftWindow {
                         resolve_target: None,
                         depth_slice: None,
                         ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color { r, g, b, a }),
+                            load,
                             store: wgpu::StoreOp::Store,
                         },
                     })],
@@ -299,16 +338,11 @@ impl SoftWindow {
             renderer.render(&mut pass, shapes, &screen);
             user_commands
         };
-        readback.copy(&mut encoder);
+        readback.copy(target, &mut encoder);
         let submission = rs
             .queue
             .submit(user_commands.into_iter().chain([encoder.finish()]));
-        {
-            let mut renderer = rs.renderer.write();
-            for id in &textures.free {
-                renderer.free_texture(id);
-            }
-        }
+        free_textures(rs, textures);
         let frame = InFlight::start(readback, submission);
         if let Some(previous) = self.in_flight.replace(frame) {
             self.show(previous)?;
@@ -357,6 +391,51 @@ impl SoftWindow {
         self.error = Some(error);
         event_loop.exit();
     }
+}
+
+fn free_textures(rs: &egui_wgpu::RenderState, textures: &egui::TexturesDelta) {
+    let mut renderer = rs.renderer.write();
+    for id in &textures.free {
+        renderer.free_texture(id);
+    }
+}
+
+/// What to draw over the previous frame so that `rects` (physical pixels) show this one:
+/// per rectangle, the clear colour, then every primitive that reaches into it, clipped to
+/// it, in painting order.
+fn redraw_within(
+    shapes: &[egui::ClippedPrimitive],
+    rects: &[egui::Rect],
+    pixels_per_point: f32,
+    clear: [f32; 4],
+) -> Vec<egui::ClippedPrimitive> {
+    // The clear colour as the bytes LoadOp::Clear would store (gamma-space, opaque or not).
+    let [r, g, b, a] = clear.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8);
+    let background = egui::Color32::from_rgba_premultiplied(r, g, b, a);
+    let mut drawn = Vec::new();
+    for rect in rects {
+        let area = *rect / pixels_per_point;
+        let mut clear_mesh = egui::epaint::Mesh::default();
+        clear_mesh.add_colored_rect(area, background);
+        drawn.push(egui::ClippedPrimitive {
+            clip_rect: area,
+            primitive: egui::epaint::Primitive::Mesh(clear_mesh),
+        });
+        for shape in shapes {
+            let clip = shape.clip_rect.intersect(area);
+            let reaches = match &shape.primitive {
+                egui::epaint::Primitive::Mesh(mesh) => mesh.calc_bounds().intersects(clip),
+                egui::epaint::Primitive::Callback(callback) => callback.rect.intersects(clip),
+            };
+            if clip.is_positive() && reaches {
+                drawn.push(egui::ClippedPrimitive {
+                    clip_rect: clip,
+                    primitive: shape.primitive.clone(),
+                });
+            }
+        }
+    }
+    drawn
 }
 
 fn update_textures(rs: &egui_wgpu::RenderState, textures: &egui::TexturesDelta) {
@@ -429,16 +508,14 @@ impl ApplicationHandler<RepaintAt> for SoftWindow {
     }
 }
 
-/// The offscreen target and the buffer its pixels are copied into for the CPU.
-struct Readback {
+/// The offscreen picture of the window. It is kept from frame to frame: a frame redraws
+/// only what changed ([`crate::frame_damage`]) over the previous one.
+struct Target {
     size: [u32; 2],
     texture: wgpu::Texture,
-    buffer: wgpu::Buffer,
-    /// Bytes per row in `buffer`: wgpu copies rows at 256-byte strides.
-    padded_row_bytes: u32,
 }
 
-impl Readback {
+impl Target {
     fn new(device: &wgpu::Device, size: [u32; 2]) -> Self {
         let texture = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("soft window target"),
@@ -454,6 +531,20 @@ impl Readback {
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
+        Self { size, texture }
+    }
+}
+
+/// A buffer the target's pixels are copied into for the CPU.
+struct Readback {
+    size: [u32; 2],
+    buffer: wgpu::Buffer,
+    /// Bytes per row in `buffer`: wgpu copies rows at 256-byte strides.
+    padded_row_bytes: u32,
+}
+
+impl Readback {
+    fn new(device: &wgpu::Device, size: [u32; 2]) -> Self {
         let padded_row_bytes = (size[0] * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("soft window readback"),
@@ -463,15 +554,14 @@ impl Readback {
         });
         Self {
             size,
-            texture,
             buffer,
             padded_row_bytes,
         }
     }
 
-    fn copy(&self, encoder: &mut wgpu::CommandEncoder) {
+    fn copy(&self, target: &Target, encoder: &mut wgpu::CommandEncoder) {
         encoder.copy_texture_to_buffer(
-            self.texture.as_image_copy(),
+            target.texture.as_image_copy(),
             wgpu::TexelCopyBufferInfo {
                 buffer: &self.buffer,
                 layout: wgpu::TexelCopyBufferLayout {
