@@ -28,9 +28,9 @@ use winit::window::{Window, WindowId};
 /// Why the software-presented window stopped or could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum SoftWindowError {
-    #[error("cannot start the window system's event loop: {0}")]
+    #[error("cannot start the window system's event loop")]
     EventLoop(#[from] winit::error::EventLoopError),
-    #[error("cannot open the window: {0}")]
+    #[error("cannot open the window")]
     Window(#[from] winit::error::OsError),
     /// softbuffer's error, as text: it may hold a platform error that cannot cross threads.
     #[error("cannot show frames in the window: {0}")]
@@ -214,13 +214,18 @@ impl SoftWindow {
         }
         let clear = self.app.clear_color(&self.ctx.global_style().visuals);
         let shapes = self.ctx.tessellate(output.shapes, output.pixels_per_point);
-        self.paint(
+        let mut textures = output.textures_delta;
+        let painted = self.paint(
             &shapes,
-            &output.textures_delta,
+            &textures,
             output.pixels_per_point,
             clear,
             animating,
-        )?;
+        );
+        // Applied by `paint`, or abandoned with the window on its error; egui checks (in
+        // debug builds) that no delta is dropped unapplied.
+        textures.clear();
+        painted?;
         if self.last_save.elapsed() > self.app.auto_save_interval() {
             self.save();
         }
@@ -386,9 +391,9 @@ impl SoftWindow {
         self.last_save = Instant::now();
     }
 
+    /// Ends the loop; [`run_soft_window`] returns the first error.
     fn fail(&mut self, event_loop: &ActiveEventLoop, error: SoftWindowError) {
-        tracing::error!("{error}");
-        self.error = Some(error);
+        self.error.get_or_insert(error);
         event_loop.exit();
     }
 }
