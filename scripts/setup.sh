@@ -18,6 +18,8 @@ fi
 python3 -m pip --version >/dev/null 2>&1 || need+=(python3-pip)
 # ffmpeg decodes video files and webcams for `likeness track` / `personalize`.
 command -v ffmpeg >/dev/null 2>&1 || need+=(ffmpeg)
+# The browser build's end-to-end test runs Debian's Chromium (headless, WebGL2 on SwiftShader).
+command -v chromium >/dev/null 2>&1 || need+=(chromium)
 # Node runs the Khronos glTF validator in retarget's tests (npm package gltf-validator).
 command -v node >/dev/null 2>&1 || need+=(nodejs)
 command -v npm >/dev/null 2>&1 || need+=(npm)
@@ -70,4 +72,23 @@ with zipfile.ZipFile(wheel) as z:
     tmp.replace(out / name)
 shutil.rmtree(out / "wheel")
 PY
+fi
+
+# The browser build: wasm-bindgen's CLI at exactly the version of the wasm-bindgen crate in
+# Cargo.lock (their formats must match), built from crates.io into .cache/tools/.
+wbg_version="$(awk '/^name = "wasm-bindgen"$/ { getline; gsub(/version = |"/, ""); print; exit }' \
+  "$(cd "$(dirname "$0")/.." && pwd)/Cargo.lock")"
+tools_dir="$(cd "$(dirname "$0")/.." && pwd)/.cache/tools"
+if ! "$tools_dir/bin/wasm-bindgen" --version 2>/dev/null | grep -qx "wasm-bindgen $wbg_version"; then
+  echo "setup: building wasm-bindgen-cli $wbg_version (crates.io)"
+  # Not --locked: one of its locked dependency versions is no longer on the registry.
+  cargo install --quiet wasm-bindgen-cli --version "$wbg_version" --root "$tools_dir"
+fi
+
+# Playwright's library (no browser download) drives Chromium in the browser test; pinned in
+# web/package.json.
+web_dir="$(cd "$(dirname "$0")/.." && pwd)/web"
+if [ ! -d "$web_dir/node_modules/playwright-core" ]; then
+  echo "setup: installing playwright-core (npm)"
+  npm install --prefix "$web_dir" --no-audit --no-fund --silent >/dev/null
 fi

@@ -12,3 +12,7 @@ cargo test --workspace --all-targets "$@"
 cargo test --workspace --doc
 # The training code (Python): a smoke training, the ONNX export and the parity checks.
 training/.venv/bin/python -m pytest training/tests -q
+# The browser build end to end: built into web/dist, served on 127.0.0.1, driven in
+# headless Chromium (WebGL2 on SwiftShader); prints the browser budgets.
+scripts/web.sh --build-only
+node web/tests/e2e.mjs

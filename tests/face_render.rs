@@ -325,3 +325,40 @@ fn culling_back_faces_leaves_the_template_pictures_unchanged() {
         }
     });
 }
+
+/// The OpenGL backend (what WebGL2 browsers and the headless browser test run) draws the
+/// template's pictures as the default backend does: shaded, albedo and normals from two
+/// poses, same tolerance as the culling test. (A square albedo texture with six layers was
+/// once taken for a cube map on OpenGL and read black.)
+#[test]
+fn the_opengl_backend_draws_what_the_default_backend_draws() {
+    with_renderer(|scene, default| {
+        let options = renderer::OffscreenOptions {
+            backends: Some(wgpu::Backends::GL),
+            ..Default::default()
+        };
+        let mut gl = OffscreenRenderer::with_options(&scene.mesh, &scene.textures, options)
+            .unwrap_or_else(|e| panic!("no OpenGL adapter (Mesa's EGL, libegl1): {e:#}"));
+        assert_eq!(gl.adapter_info().backend, wgpu::Backend::Gl);
+        for (weights, yaw) in [("", 0.0), ("jawOpen=0.8,mouthSmileLeft=1", 35.0)] {
+            let (w, _) = parse_weights(weights).expect("weights");
+            let orbit = Orbit {
+                yaw_deg: yaw,
+                ..Orbit::default()
+            };
+            for view in [StudioView::Shaded, StudioView::Albedo, StudioView::Normals] {
+                let a = render_view(scene, default, view, &w, &orbit, SIZE).expect("render");
+                let b = render_view(scene, &mut gl, view, &w, &orbit, SIZE).expect("render");
+                let off = a
+                    .pixels()
+                    .zip(b.pixels())
+                    .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
+                    .count();
+                assert!(
+                    off as f64 <= 0.005 * (SIZE.0 * SIZE.1) as f64,
+                    "{weights:?} yaw {yaw} {view:?}: {off} pixels differ on OpenGL"
+                );
+            }
+        }
+    });
+}

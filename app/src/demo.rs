@@ -22,7 +22,7 @@ use image::RgbImage;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
-use renderer::{Camera, FrameParams, OffscreenRenderer, TextureLayers, ViewMode};
+use renderer::{Camera, FrameParams, MeshData, OffscreenRenderer, TextureLayers, ViewMode};
 use tracking::pipeline::{FrameOutput, TrackEvent, Tracker, TrackerConfig};
 use tracking::record::FrameRecord;
 use tracking::source::{Frame, FrameSource, Next};
@@ -396,25 +396,44 @@ pub fn render_clip(
     let mut renderer = OffscreenRenderer::new(&mesh, &textures).context(
         "no GPU adapter for rendering the demo (on Debian install mesa-vulkan-drivers for lavapipe)",
     )?;
-    let intrinsics = Intrinsics::from_fov(config.width, config.height, config.fov_deg);
     let mut frames = Vec::with_capacity(motion.weights.len());
-    for (weights, pose) in motion.weights.iter().zip(&motion.poses) {
-        renderer.face.set_weights(&renderer.queue, &weights.0)?;
-        let albedo = scene.model.albedo(scene.albedo.face(), person, weights)?;
-        renderer
-            .face
-            .set_albedo(&renderer.queue, &layers_with_face(&textures, &albedo))?;
-        let mut params = FrameParams::new(Camera {
-            view_from_model: pose.view_from_model(),
-            clip_from_view: intrinsics.clip_from_view(1.0, 1000.0),
-        });
-        params.view = ViewMode::Shaded;
-        params.sh_coefficients = motion.gamma;
-        params.background = [0.32, 0.34, 0.37, 1.0];
+    for k in 0..motion.weights.len() {
+        let params =
+            prepare_clip_frame(&mut renderer, scene, &textures, person, motion, config, k)?;
         let rgba = renderer.render_image(config.width, config.height, &params)?;
         frames.push(image::DynamicImage::ImageRgba8(rgba).to_rgb8());
     }
     Ok(frames)
+}
+
+/// Sets the renderer up for frame `k` of the clip (the person's blendshapes at the frame's
+/// weights, equation 3's albedo) and returns the frame's camera and lighting.
+fn prepare_clip_frame(
+    renderer: &mut OffscreenRenderer,
+    scene: &Scene,
+    textures: &TextureLayers,
+    person: &PersonalCorrections,
+    motion: &DemoMotion,
+    config: &DemoConfig,
+    k: usize,
+) -> Result<FrameParams> {
+    let (Some(weights), Some(pose)) = (motion.weights.get(k), motion.poses.get(k)) else {
+        bail!("the demo clip has no frame {k}");
+    };
+    renderer.face.set_weights(&renderer.queue, &weights.0)?;
+    let albedo = scene.model.albedo(scene.albedo.face(), person, weights)?;
+    renderer
+        .face
+        .set_albedo(&renderer.queue, &layers_with_face(textures, &albedo))?;
+    let intrinsics = Intrinsics::from_fov(config.width, config.height, config.fov_deg);
+    let mut params = FrameParams::new(Camera {
+        view_from_model: pose.view_from_model(),
+        clip_from_view: intrinsics.clip_from_view(1.0, 1000.0),
+    });
+    params.view = ViewMode::Shaded;
+    params.sh_coefficients = motion.gamma;
+    params.background = [0.32, 0.34, 0.37, 1.0];
+    Ok(params)
 }
 
 /// Frames already in memory as a [`FrameSource`].
@@ -587,4 +606,176 @@ pub fn landmark_nme(
         count += 1;
     }
     (count > 0).then(|| total / count as f32)
+}
+
+/// [`build_demo`] in steps on the caller's thread, for the browser (no threads, and GPU
+/// readbacks that arrive between event-loop turns): [`SteppedDemo::step`] is called once per
+/// UI frame and does a slice of the work (render a clip frame, track a frame, ModelNet).
+pub struct SteppedDemo {
+    config: DemoConfig,
+    scene: Arc<Scene>,
+    face: Arc<FaceModel>,
+    networks: Arc<tracking::bundle::NetworkBytes>,
+    truth: PersonalCorrections,
+    truth_blendshapes: PersonalizedBlendshapes,
+    motion: DemoMotion,
+    renderer: Option<OffscreenRenderer>,
+    textures: TextureLayers,
+    /// Clip frames rendered so far, and whether the next one is being read back.
+    rendered: Vec<RgbImage>,
+    in_flight: bool,
+    tracking: Option<crate::stepped::SteppedTracking>,
+    pub progress: crate::footage::Progress,
+}
+
+impl SteppedDemo {
+    /// Makes the person and the performance, and readies `renderer` (made on the studio's
+    /// device with the person's mesh, [`mesh_data`]) to film them.
+    pub fn new(
+        scene: Arc<Scene>,
+        networks: Arc<tracking::bundle::NetworkBytes>,
+        config: DemoConfig,
+        make_renderer: impl FnOnce(&MeshData, &TextureLayers) -> Result<OffscreenRenderer>,
+    ) -> Result<Self> {
+        let truth = synthetic_person(&scene.model, scene.albedo.face(), config.seed);
+        let truth_blendshapes = scene.model.personalize(&truth)?;
+        let motion = demo_motion(&scene.model, &truth_blendshapes, &config);
+        let mesh = mesh_data(&scene.model.template, &truth_blendshapes);
+        let textures = texture_layers(&scene.albedo);
+        let renderer = make_renderer(&mesh, &textures)?;
+        let face = Arc::new(FaceModel::new(scene.model.template.clone()));
+        Ok(Self {
+            progress: crate::footage::Progress {
+                stage: "rendering the demo clip",
+                done: 0,
+                total: Some(config.frames),
+            },
+            config,
+            scene,
+            face,
+            networks,
+            truth,
+            truth_blendshapes,
+            motion,
+            renderer: Some(renderer),
+            textures,
+            rendered: Vec::new(),
+            in_flight: false,
+            tracking: None,
+        })
+    }
+
+    /// Works until `budget` is spent or the GPU is awaited; `Some` once, at the end, with
+    /// the demo session and the rate the clip was tracked at.
+    pub fn step(
+        &mut self,
+        budget: web_time::Duration,
+    ) -> Option<Result<(DemoSession, crate::stepped::TrackingRate)>> {
+        let started = web_time::Instant::now();
+        if let Some(tracking) = &mut self.tracking {
+            let result = tracking.step(budget);
+            self.progress = tracking.progress.clone();
+            return result.map(|r| {
+                r.map_err(|e| anyhow::anyhow!("the demo clip: {e}"))
+                    .map(|tracked| self.finish(tracked))
+            });
+        }
+        while started.elapsed() < budget {
+            match self.render_step() {
+                Ok(true) => {}
+                Ok(false) => return None,
+                Err(e) => return Some(Err(e)),
+            }
+            if self.rendered.len() == self.motion.weights.len() {
+                return match self.start_tracking() {
+                    Ok(()) => None,
+                    Err(e) => Some(Err(e)),
+                };
+            }
+        }
+        None
+    }
+
+    /// Begins or collects one clip frame; `false` while the GPU is still on it.
+    fn render_step(&mut self) -> Result<bool> {
+        let Some(renderer) = self.renderer.as_mut() else {
+            bail!("the demo renderer is gone");
+        };
+        if !self.in_flight {
+            let k = self.rendered.len();
+            let params = prepare_clip_frame(
+                renderer,
+                &self.scene,
+                &self.textures,
+                &self.truth,
+                &self.motion,
+                &self.config,
+                k,
+            )?;
+            renderer.begin_image(self.config.width, self.config.height, &params)?;
+            self.in_flight = true;
+        }
+        match renderer.poll_image() {
+            None => Ok(false),
+            Some(rgba) => {
+                self.in_flight = false;
+                self.rendered
+                    .push(image::DynamicImage::ImageRgba8(rgba?).to_rgb8());
+                self.progress.done = self.rendered.len();
+                Ok(true)
+            }
+        }
+    }
+
+    fn start_tracking(&mut self) -> Result<()> {
+        // The renderer's textures are the clip's only; the studio draws with its own.
+        self.renderer = None;
+        let config = TrackerConfig {
+            threads: 1,
+            fov_deg: Some(self.config.fov_deg),
+            ..TrackerConfig::default()
+        };
+        let tracker = self
+            .networks
+            .tracker(self.face.clone(), config, true)
+            .context("the demo tracks its clip like footage")?;
+        let model_net = self.networks.model_net()?;
+        let frames = std::mem::take(&mut self.rendered);
+        let tracking = crate::stepped::SteppedTracking::new(
+            self.face.clone(),
+            tracker,
+            model_net,
+            crate::stepped::FrameFeed::clip(frames, self.config.fps),
+            usize::MAX,
+            self.config.personalize_frames,
+        );
+        self.progress = tracking.progress.clone();
+        self.tracking = Some(tracking);
+        Ok(())
+    }
+
+    fn finish(
+        &mut self,
+        tracked: crate::stepped::Tracked,
+    ) -> (DemoSession, crate::stepped::TrackingRate) {
+        let selected_frames = tracked
+            .selected_frames
+            .iter()
+            .map(|&i| tracked.outputs[i].record.index)
+            .collect();
+        let session = DemoSession {
+            config: self.config.clone(),
+            frames: tracked.frames,
+            motion: self.motion.clone(),
+            truth: self.truth.clone(),
+            truth_blendshapes: self.truth_blendshapes.clone(),
+            learned: tracked.corrections,
+            learned_blendshapes: tracked.blendshapes,
+            selected_frames,
+            outputs: tracked.outputs,
+            records: tracked.records,
+            intrinsics: tracked.intrinsics,
+        };
+        (session, tracked.rate)
+    }
 }

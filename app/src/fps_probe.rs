@@ -6,7 +6,7 @@
 //! read-back instead of a presentation) breaks a frame into its parts.
 
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use web_time::{Duration, Instant};
 
 /// What a finished measurement found.
 #[derive(Clone, Debug, PartialEq)]

@@ -45,6 +45,18 @@ impl LoadedPuppet {
     pub fn load(path: &Path) -> Result<Self> {
         let puppet = Puppet::load(path)?;
         let mapping = MappingData::load_for_puppet(path)?;
+        Self::with_mapping(path, puppet, mapping)
+    }
+
+    /// A puppet from a file's bytes (dropped in the browser), which cannot have an external
+    /// buffer or a mapping sidecar beside it: the default mapping applies.
+    pub fn from_bytes(name: &str, bytes: &[u8]) -> Result<Self> {
+        let path = Path::new(name);
+        let puppet = Puppet::from_slice(bytes, path, None)?;
+        Self::with_mapping(path, puppet, MappingData::default())
+    }
+
+    fn with_mapping(path: &Path, puppet: Puppet, mapping: MappingData) -> Result<Self> {
         let view = PuppetView::new(&puppet)?;
         let retargeter = Retargeter::new(&puppet, &mapping);
         if !retargeter.report.drives_anything() && retargeter.head_node().is_none() {
@@ -244,6 +256,10 @@ pub struct PuppetPanel {
     pub render_scale: f32,
     generation: u64,
     tried_demo_puppet: bool,
+    /// The demo puppet's bytes where there are no files (the browser fetches them).
+    pub demo_puppet_bytes: Option<crate::web_host::PickedFile>,
+    /// "Open puppet..." was clicked where the studio, not a native dialog, picks files.
+    pub pick_requested: bool,
     dragging_point: Option<usize>,
     gpu: Option<PuppetGpu>,
     person_gpu: Option<PersonGpu>,
@@ -267,6 +283,8 @@ impl Default for PuppetPanel {
             render_scale: 1.0,
             generation: 0,
             tried_demo_puppet: false,
+            demo_puppet_bytes: None,
+            pick_requested: false,
             dragging_point: None,
             gpu: None,
             person_gpu: None,
@@ -284,7 +302,17 @@ impl PuppetPanel {
     /// Loads a puppet (replacing the current one on success; on failure the current one
     /// stays).
     pub fn load(&mut self, path: &Path) -> Result<()> {
-        let loaded = LoadedPuppet::load(path)?;
+        self.show_loaded(LoadedPuppet::load(path)?, path);
+        Ok(())
+    }
+
+    /// [`PuppetPanel::load`] from a file's bytes (the browser's drops and downloads).
+    pub fn load_bytes(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        self.show_loaded(LoadedPuppet::from_bytes(name, bytes)?, Path::new(name));
+        Ok(())
+    }
+
+    fn show_loaded(&mut self, loaded: LoadedPuppet, path: &Path) {
         self.puppet = Some(loaded);
         self.generation += 1;
         self.drive = DriveTarget::Puppet;
@@ -292,7 +320,6 @@ impl PuppetPanel {
         // must look the same wherever the project is checked out.
         let name = path.file_name().unwrap_or(path.as_os_str());
         self.status = Some(format!("loaded {}", name.to_string_lossy()));
-        Ok(())
     }
 
     /// Drives person B: the one already chosen, else a second synthetic person (the demo
@@ -314,7 +341,12 @@ impl PuppetPanel {
         self.tried_demo_puppet = true;
         // The demo puppet arrives in the background: person B, if driven, stays driven.
         let drive = self.drive;
-        let loaded = self.load(Path::new(DEMO_PUPPET)).context(
+        let loaded = match self.demo_puppet_bytes.take() {
+            // The browser fetched it from the served directory.
+            Some(file) => self.load_bytes(&file.name, &file.bytes),
+            None => self.load(Path::new(DEMO_PUPPET)),
+        }
+        .context(
             "the demo puppet (assets/puppets/pip.glb; `likeness generate-puppets` remakes it)",
         );
         self.drive = drive;
@@ -481,6 +513,7 @@ impl PuppetPanel {
                     ui.label("no puppet");
                 }
             }
+            #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Open puppet...").clicked()
                 && let Some(path) = rfd::FileDialog::new()
                     .add_filter("glTF / VRM", &["glb", "gltf", "vrm"])
@@ -488,6 +521,11 @@ impl PuppetPanel {
                 && let Err(e) = self.load(&path)
             {
                 *error = Some(format!("{e:#}"));
+            }
+            #[cfg(target_arch = "wasm32")]
+            if ui.button("Open puppet...").clicked() {
+                // The studio's file picker: a chosen puppet comes back as picked bytes.
+                self.pick_requested = true;
             }
             ui.separator();
             ui.add(egui::Slider::new(&mut self.orbit_yaw_deg, -180.0..=180.0).text("Turn"));
@@ -700,6 +738,7 @@ impl PuppetPanel {
             let label = ui.label("Folder");
             ui.add(egui::TextEdit::singleline(&mut self.export_dir).desired_width(110.0))
                 .labelled_by(label.id);
+            #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Choose...").clicked()
                 && let Some(dir) = rfd::FileDialog::new().pick_folder()
             {

@@ -21,6 +21,9 @@ pub struct Scene {
     pub albedo: MeanAlbedo,
     pub mesh: MeshData,
     pub textures: TextureLayers,
+    /// The networks as fetched bytes (the browser, which has no files); `None` natively,
+    /// where trackers load them from `assets/models` and the OpenSeeFace folder.
+    pub networks: Option<std::sync::Arc<tracking::bundle::NetworkBytes>>,
 }
 
 impl Scene {
@@ -30,18 +33,24 @@ impl Scene {
         let path = face::template::resolve_template_path(facemodel);
         let template = Template::load(&path)?;
         tracing::info!(path = %path.display(), vertices = template.vertex_count(), "template loaded");
+        Ok(Self::from_template(template))
+    }
+
+    /// The scene of a template already read (the browser fetches its bytes).
+    pub fn from_template(template: Template) -> Self {
         let model = FaceModel::new(template);
         let person = model.template_blendshapes();
         let albedo = MeanAlbedo::generate(&model.template);
         let mesh = mesh_data(&model.template, &person);
         let textures = texture_layers(&albedo);
-        Ok(Self {
+        Self {
             model,
             person,
             albedo,
             mesh,
             textures,
-        })
+            networks: None,
+        }
     }
 
     /// The attention mask A_i as the renderer's UV mask input (rows top-first).

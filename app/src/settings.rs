@@ -95,9 +95,14 @@ pub const STUDIO_APP_ID: &str = "Likeness studio";
 /// Where the studio autosaves the last processed session: the platform's data folder for
 /// the app (the same eframe uses for its settings), or the system temp folder.
 pub fn autosave_path() -> PathBuf {
-    eframe::storage_dir(STUDIO_APP_ID)
+    #[cfg(not(target_arch = "wasm32"))]
+    return eframe::storage_dir(STUDIO_APP_ID)
         .unwrap_or_else(|| std::env::temp_dir().join("likeness"))
-        .join("autosave.likeness")
+        .join("autosave.likeness");
+    // A browser has no folders (asking for one panics): sessions are saved as downloads,
+    // and the autosave is never written there.
+    #[cfg(target_arch = "wasm32")]
+    PathBuf::from("autosave.likeness")
 }
 
 /// `path` with the `.likeness` extension when it has none.

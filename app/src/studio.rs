@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::Instant;
+use web_time::Instant;
 
 use face::{ICT_NAMES, NUM_BLENDSHAPES};
 use renderer::FaceRenderer;
@@ -127,6 +127,15 @@ pub struct StudioApp {
     pub window_on_cpu_adapter: bool,
     /// The shape drawing last applied to the egui context.
     applied_smooth_edges: Option<bool>,
+    /// The page the studio runs in, in a browser (files, downloads, video, camera).
+    pub web_host: Option<std::rc::Rc<dyn crate::web_host::WebHost>>,
+    /// The built-in demo being made a slice per frame (the browser; natively it is made
+    /// before the window opens).
+    demo_job: Option<crate::demo::SteppedDemo>,
+    /// The rate the last demo or footage was tracked at in steps, for the page to report.
+    pub tracking_rate: Option<crate::stepped::TrackingRate>,
+    /// The video file the page is decoding for a footage job.
+    decoding_video: Option<String>,
 }
 
 fn frame_image(frame: &image::RgbImage) -> egui::ColorImage {
@@ -199,6 +208,10 @@ impl StudioApp {
             window_cleared_to_panel_colour: false,
             window_on_cpu_adapter: false,
             applied_smooth_edges: None,
+            web_host: None,
+            demo_job: None,
+            tracking_rate: None,
+            decoding_video: None,
         };
         if let Some(storage) = cc.storage {
             let settings = eframe::get_value::<Settings>(storage, SETTINGS_KEY)
@@ -375,6 +388,10 @@ impl StudioApp {
 
     /// Starts writing the autosave of `session` on its own thread.
     fn start_autosave(&mut self, session: Arc<StudioSession>) {
+        if self.web_host.is_some() {
+            // A page has nowhere to autosave; File > Save session downloads the session.
+            return;
+        }
         let path = self.autosave_path.clone();
         self.start_write(WriteKind::Autosave, "autosave", move || {
             if let Some(Err(e)) = path.parent().map(std::fs::create_dir_all) {
@@ -459,6 +476,10 @@ impl StudioApp {
         };
         self.job_preview = None;
         let input = self.job.take().map(|j| j.input.clone()).unwrap_or_default();
+        if let Some(host) = &self.web_host {
+            // A recording has ended (or another job, which leaves the camera off).
+            host.stop_camera();
+        }
         match result {
             Ok(session) => {
                 self.state.notices.message(format!(
@@ -534,6 +555,15 @@ impl StudioApp {
     /// The File menu: footage in.
     fn file_menu_ui(&mut self, ui: &mut egui::Ui) {
         ui.menu_button("File", |ui| {
+            #[cfg(target_arch = "wasm32")]
+            if ui
+                .button("Open images, video, puppet or session...")
+                .clicked()
+            {
+                ui.close();
+                self.pick_files();
+            }
+            #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Open image or video...").clicked() {
                 ui.close();
                 if let Some(path) = rfd::FileDialog::new()
@@ -550,6 +580,7 @@ impl StudioApp {
                     self.open_footage(ui.ctx(), &path.display().to_string());
                 }
             }
+            #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Open folder of images...").clicked() {
                 ui.close();
                 if let Some(path) = rfd::FileDialog::new().pick_folder() {
@@ -562,9 +593,10 @@ impl StudioApp {
                 .clicked()
             {
                 ui.close();
-                self.open_footage(ui.ctx(), "webcam");
+                self.open_webcam(ui.ctx());
             }
             ui.separator();
+            #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Open session...").clicked() {
                 ui.close();
                 self.open_session_dialog();
@@ -585,6 +617,7 @@ impl StudioApp {
                 ui.close();
                 self.save_session_dialog();
             }
+            #[cfg(not(target_arch = "wasm32"))]
             ui.menu_button("Recent", |ui| {
                 if self.settings.recent.is_empty() {
                     ui.label("Nothing opened yet");
@@ -599,7 +632,9 @@ impl StudioApp {
                     }
                 }
             });
+            #[cfg(not(target_arch = "wasm32"))]
             let autosave = self.autosave_path.clone();
+            #[cfg(not(target_arch = "wasm32"))]
             if ui
                 .add_enabled(
                     autosave.is_file(),
@@ -635,6 +670,7 @@ impl StudioApp {
                 self.settings.reduce_3d_while_playing = Some(reduce);
             }
             ui.separator();
+            #[cfg(not(target_arch = "wasm32"))]
             if ui
                 .button("Load person B from a session...")
                 .on_hover_text("Drive another person's own blendshapes and dynamic albedo")
@@ -648,18 +684,46 @@ impl StudioApp {
         });
     }
 
+    #[cfg(not(target_arch = "wasm32"))]
     fn open_session_dialog(&mut self) {
         if let Some(path) = session_dialog().pick_file() {
             self.open_session(&path);
         }
     }
 
+    #[cfg(not(target_arch = "wasm32"))]
     fn save_session_dialog(&mut self) {
         if let Some(path) = session_dialog()
             .set_file_name("person.likeness")
             .save_file()
         {
             self.save_session(&path);
+        }
+    }
+
+    /// In the browser a saved session is a download.
+    #[cfg(target_arch = "wasm32")]
+    fn save_session_dialog(&mut self) {
+        let Some(session) = self.session.clone() else {
+            self.state.notices.error("there is no session to save");
+            return;
+        };
+        let Some(host) = self.web_host.clone() else {
+            self.state.notices.error("saving needs the page");
+            return;
+        };
+        match session
+            .to_bytes()
+            .and_then(|bytes| host.download("person.likeness", "application/octet-stream", &bytes))
+        {
+            Ok(()) => self
+                .state
+                .notices
+                .message("saved person.likeness (a download)"),
+            Err(e) => self
+                .state
+                .notices
+                .error(format!("cannot save the session: {e}")),
         }
     }
 
@@ -843,7 +907,11 @@ impl StudioApp {
         ) {
             self.state.notices.error(error);
         }
-        if let Some(request) = self.puppet_panel.requested_export.take() {
+        if let Some(request) = self.puppet_panel.requested_export.take()
+            && let Some(host) = self.web_host.clone()
+        {
+            self.puppet_panel.status = Some(self.web_export(request.kind, &session, &*host));
+        } else if let Some(request) = self.puppet_panel.requested_export.take() {
             let job = self.puppet_panel.export_job(
                 request.kind,
                 self.scene.clone(),
@@ -858,10 +926,298 @@ impl StudioApp {
         self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
     }
 
+    /// An export in the browser, as a download; says what happened for the panel.
+    fn web_export(
+        &mut self,
+        kind: crate::puppet_panel::ExportKind,
+        session: &StudioSession,
+        host: &dyn crate::web_host::WebHost,
+    ) -> String {
+        use crate::puppet_panel::ExportKind;
+        let name = kind.file_name(None);
+        match kind {
+            ExportKind::LiveLinkCsv => {
+                let tracks = session.tracks();
+                let text = match &self.puppet_panel.puppet {
+                    Some(p) => retarget::export::live_link_csv(&p.retargeter, &tracks),
+                    None => retarget::export::live_link_csv_raw(&tracks),
+                };
+                match host.download(&name, "text/csv", text.as_bytes()) {
+                    Ok(()) => format!("downloaded {name}"),
+                    Err(e) => {
+                        self.state.notices.error(format!("{name}: {e}"));
+                        format!("{name} failed")
+                    }
+                }
+            }
+            // Both re-read files beside the puppet (its buffers and images) and write
+            // through the file system, which a page does not have.
+            ExportKind::Animation | ExportKind::PersonalizedRig => {
+                let message = format!(
+                    "{name}: this export is written by the native studio (`likeness studio`, \
+                     or `likeness retarget`); the browser exports the Live Link CSV and the \
+                     session"
+                );
+                self.state.notices.error(message.clone());
+                message
+            }
+        }
+    }
+
+    /// Makes the built-in demo a slice per frame on the studio's own GPU device (the
+    /// browser, where nothing may block): the template face plays meanwhile, and the
+    /// session replaces it when it is ready.
+    pub fn start_demo_in_steps(&mut self, render_state: &egui_wgpu::RenderState) {
+        let Some(networks) = self.scene.networks.clone() else {
+            self.state
+                .notices
+                .error("the demo needs the networks, which were not loaded");
+            return;
+        };
+        let options = renderer::RenderOptions {
+            sample_count: 1,
+            // Blending on the CPU is the path every WebGL2 implementation can draw.
+            blend_path: renderer::BlendPath::Cpu,
+            cull_back_faces: false,
+        };
+        let made = crate::demo::SteppedDemo::new(
+            self.scene.clone(),
+            networks,
+            crate::demo::DemoConfig::default(),
+            |mesh, textures| {
+                Ok(renderer::OffscreenRenderer::on_device(
+                    render_state.adapter.clone(),
+                    render_state.device.clone(),
+                    render_state.queue.clone(),
+                    options,
+                    mesh,
+                    textures,
+                )?)
+            },
+        );
+        match made {
+            Ok(job) => self.demo_job = Some(job),
+            Err(e) => self
+                .state
+                .notices
+                .error(format!("the demo could not be built: {e:#}")),
+        }
+    }
+
+    /// The demo being made, if it is.
+    pub fn demo_job(&self) -> Option<&crate::demo::SteppedDemo> {
+        self.demo_job.as_ref()
+    }
+
+    fn poll_demo_job(&mut self, ctx: &egui::Context) {
+        let Some(job) = self.demo_job.as_mut() else {
+            return;
+        };
+        // Rendering and tracking take a slice of each frame; the UI keeps drawing.
+        ctx.request_repaint();
+        // A larger slice than a footage job's: the demo is what a visitor waits for, and
+        // the studio has nothing else to show meanwhile but the template.
+        let Some(result) = job.step(web_time::Duration::from_millis(100)) else {
+            return;
+        };
+        self.demo_job = None;
+        match result {
+            Ok((demo, rate)) => {
+                if let Some(fps) = rate.fps() {
+                    self.state.notices.message(format!(
+                        "demo tracked at {fps:.1} frames per second ({} frames)",
+                        rate.frames
+                    ));
+                }
+                self.tracking_rate = Some(rate);
+                let session = StudioSession::from_demo(&self.scene.model, demo);
+                self.set_session(Arc::new(session));
+            }
+            Err(e) => self
+                .state
+                .notices
+                .error(format!("the demo could not be built: {e:#}")),
+        }
+    }
+
+    /// Opens the page's file picker (the browser).
+    pub fn pick_files(&mut self) {
+        match &self.web_host {
+            Some(host) => host.pick_files("image/*,video/*,.glb,.gltf,.vrm,.likeness"),
+            None => self.state.notices.error("opening files needs the page"),
+        }
+    }
+
+    /// Records from the webcam: natively through ffmpeg, in the browser through the page.
+    pub fn open_webcam(&mut self, ctx: &egui::Context) {
+        let Some(host) = self.web_host.clone() else {
+            self.open_footage(ctx, "webcam");
+            return;
+        };
+        if let Some(job) = &self.job {
+            self.state.notices.error(format!(
+                "still processing {}: cancel it before recording",
+                job.input
+            ));
+            return;
+        }
+        host.start_camera();
+        let camera = host.clone();
+        let next = move || match camera.camera_frame() {
+            crate::web_host::CameraFrame::Frame(image) => crate::stepped::LiveFrame::Frame(image),
+            crate::web_host::CameraFrame::Starting | crate::web_host::CameraFrame::Waiting => {
+                crate::stepped::LiveFrame::Waiting
+            }
+            crate::web_host::CameraFrame::Failed(reason) => {
+                crate::stepped::LiveFrame::Ended(Some(reason))
+            }
+        };
+        self.start_feed(
+            "webcam",
+            crate::stepped::FrameFeed::Live {
+                next: Box::new(next),
+                fps: 30.0,
+            },
+        );
+    }
+
+    /// Starts a footage job on frames the page supplies (the browser).
+    #[cfg(target_arch = "wasm32")]
+    fn start_feed(&mut self, input: &str, feed: crate::stepped::FrameFeed) {
+        match FootageJob::start_feed(self.scene.clone(), input.to_owned(), feed) {
+            Ok(job) => self.job = Some(job),
+            Err(e) => self.state.notices.error(format!("{input}: {e:#}")),
+        }
+    }
+
+    #[cfg(not(target_arch = "wasm32"))]
+    fn start_feed(&mut self, input: &str, _feed: crate::stepped::FrameFeed) {
+        self.state.notices.error(format!(
+            "{input}: frames from a page are tracked only in the browser build"
+        ));
+    }
+
+    /// Files that came as bytes (picked or dropped in the browser): puppets load into the
+    /// puppet panel, a `.likeness` file opens as the session, a video is decoded by the
+    /// page and tracked, and images are tracked as one clip in name order.
+    pub fn open_files(&mut self, mut files: Vec<crate::web_host::PickedFile>) {
+        use crate::web_host::{is_puppet_name, is_video_name};
+        files.sort_by(|a, b| a.name.cmp(&b.name));
+        let mut images = Vec::new();
+        let mut unreadable = Vec::new();
+        for file in files {
+            let lower = file.name.to_ascii_lowercase();
+            if is_puppet_name(&file.name) {
+                match self.puppet_panel.load_bytes(&file.name, &file.bytes) {
+                    Ok(()) if self.session.is_some() => self.state.panel = Panel::Puppet,
+                    Ok(()) => {}
+                    Err(e) => self.state.notices.error(format!("{e:#}")),
+                }
+            } else if lower.ends_with(".likeness") {
+                match StudioSession::from_bytes(&self.scene.model, &file.name, &file.bytes) {
+                    Ok(session) => {
+                        self.state.notices.message(format!(
+                            "opened {} ({} frames)",
+                            file.name,
+                            session.frame_count()
+                        ));
+                        self.set_session(Arc::new(session));
+                    }
+                    Err(e) => self.state.notices.error(e),
+                }
+            } else if is_video_name(&file.name) {
+                match &self.web_host {
+                    Some(host) if self.job.is_none() && self.decoding_video.is_none() => {
+                        host.decode_video(
+                            &file,
+                            crate::footage::FootageRequest::new("").max_frames,
+                        );
+                        self.decoding_video = Some(file.name.clone());
+                    }
+                    Some(_) => self.state.notices.error(format!(
+                        "{}: still processing other footage; open it when that has ended",
+                        file.name
+                    )),
+                    None => self
+                        .state
+                        .notices
+                        .error(format!("{}: videos are decoded by the page", file.name)),
+                }
+            } else {
+                match image::load_from_memory(&file.bytes) {
+                    Ok(image) => images.push(image.to_rgb8()),
+                    Err(e) => unreadable.push(format!("{} ({e})", file.name)),
+                }
+            }
+        }
+        if !unreadable.is_empty() {
+            self.state.notices.error(format!(
+                "not an image, video, puppet or session: {}",
+                unreadable.join(", ")
+            ));
+        }
+        if !images.is_empty() {
+            let name = if images.len() == 1 {
+                "dropped image".to_owned()
+            } else {
+                format!("{} dropped images", images.len())
+            };
+            self.start_feed(&name, crate::stepped::FrameFeed::clip(images, 30.0));
+        }
+    }
+
+    /// Takes what the page has for the studio: picked files, a puppet request, a decoded
+    /// video.
+    fn poll_web(&mut self, ctx: &egui::Context) {
+        let Some(host) = self.web_host.clone() else {
+            return;
+        };
+        if std::mem::take(&mut self.puppet_panel.pick_requested) {
+            host.pick_files(".glb,.gltf,.vrm");
+        }
+        let picked = host.take_picked_files();
+        if !picked.is_empty() {
+            self.open_files(picked);
+        }
+        if let Some(name) = self.decoding_video.clone() {
+            ctx.request_repaint();
+            match host.video_frames() {
+                Some(crate::web_host::VideoFrames::Done { frames, fps }) => {
+                    self.decoding_video = None;
+                    self.start_feed(&name, crate::stepped::FrameFeed::clip(frames, fps));
+                }
+                Some(crate::web_host::VideoFrames::Failed(reason)) => {
+                    self.decoding_video = None;
+                    self.state.notices.error(format!("{name}: {reason}"));
+                }
+                Some(crate::web_host::VideoFrames::Decoding { .. }) => {}
+                None => self.decoding_video = None,
+            }
+        }
+        if self.job.is_some() {
+            // The job advances only when the studio draws.
+            ctx.request_repaint();
+        }
+    }
+
+    /// Where the page is with a video it decodes, for the job bar.
+    pub fn video_decoding(&self) -> Option<(String, Option<crate::web_host::VideoFrames>)> {
+        let name = self.decoding_video.clone()?;
+        Some((name, self.web_host.as_ref().and_then(|h| h.video_frames())))
+    }
+
     /// Puppet files dropped on the window are loaded into the puppet panel; images, videos
     /// and folders are opened as footage.
     fn dropped_files(&mut self, ctx: &egui::Context) {
         let dropped = ctx.input(|i| i.raw.dropped_files.clone());
+        // A browser reads dropped files asynchronously: the page reads them and hands them
+        // back as picked files.
+        if let Some(host) = &self.web_host {
+            if !dropped.is_empty() {
+                host.read_dropped(dropped);
+            }
+            return;
+        }
         for file in dropped {
             let path = file.path().to_owned();
             let ext = path
@@ -920,7 +1276,10 @@ impl StudioApp {
             self.save_session_shortcut();
         }
         if open {
+            #[cfg(not(target_arch = "wasm32"))]
             self.open_session_dialog();
+            #[cfg(target_arch = "wasm32")]
+            self.pick_files();
         }
         ctx.input(|i| {
             if i.modifiers.command {
@@ -1124,6 +1483,7 @@ impl StudioApp {
 }
 
 /// The file dialog for session files.
+#[cfg(not(target_arch = "wasm32"))]
 fn session_dialog() -> rfd::FileDialog {
     rfd::FileDialog::new().add_filter("Likeness session", &["likeness"])
 }
@@ -1173,6 +1533,8 @@ impl eframe::App for StudioApp {
             }
         }
         self.apply_smooth_edges(ui.ctx());
+        self.poll_demo_job(ui.ctx());
+        self.poll_web(ui.ctx());
         self.poll_job(ui.ctx());
         self.poll_writes(ui.ctx());
         self.shortcuts(ui.ctx());

@@ -245,6 +245,19 @@ impl StudioSession {
             .map_err(|e| format!("cannot save {}: {e}", path.display()))
     }
 
+    /// The session file's bytes (a download in the browser).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+        self.to_file()
+            .to_bytes()
+            .map_err(|e| format!("cannot encode the session: {e}"))
+    }
+
+    /// A session from a file's bytes, called `name` in messages.
+    pub fn from_bytes(model: &FaceModel, name: &str, bytes: &[u8]) -> Result<Self, String> {
+        let file = Session::from_bytes(bytes).map_err(|e| format!("{name}: {e}"))?;
+        Self::from_file(model, file).map_err(|e| format!("{name}: {e}"))
+    }
+
     /// Reads a session file.
     pub fn load(model: &FaceModel, path: &std::path::Path) -> Result<Self, String> {
         let file = Session::load(path).map_err(|e| e.to_string())?;

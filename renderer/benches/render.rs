@@ -70,6 +70,7 @@ fn bench(c: &mut Criterion) {
                     sample_count: Some(samples),
                     blend_path: Some(blend_path),
                     cull_back_faces: false,
+                    backends: None,
                 },
             )
             .expect("renderer");

@@ -353,7 +353,7 @@ impl FaceRenderer {
             "albedo",
             albedo.width,
             albedo.height,
-            albedo.layers.len() as u32,
+            albedo_texture_layers(albedo),
         )?;
         let scalar_width = data_width;
         let scalar_rows = counts.vertices.div_ceil(scalar_width);
@@ -718,12 +718,12 @@ impl FaceRenderer {
             "albedo",
             albedo.width,
             albedo.height,
-            albedo.layers.len() as u32,
+            albedo_texture_layers(albedo),
         )?;
         let size = self.albedo_texture.size();
         if size.width == albedo.width
             && size.height == albedo.height
-            && size.depth_or_array_layers == albedo.layers.len() as u32
+            && size.depth_or_array_layers == albedo_texture_layers(albedo)
         {
             write_albedo(queue, &self.albedo_texture, albedo);
         } else {
@@ -1564,7 +1564,7 @@ fn create_albedo_texture(
         size: wgpu::Extent3d {
             width: albedo.width,
             height: albedo.height,
-            depth_or_array_layers: albedo.layers.len() as u32,
+            depth_or_array_layers: albedo_texture_layers(albedo),
         },
         mip_level_count,
         sample_count: 1,
@@ -1575,6 +1575,19 @@ fn create_albedo_texture(
     });
     write_albedo(queue, &texture, albedo);
     texture
+}
+
+/// Array layers of the albedo texture: one per albedo layer, plus an unused one when the
+/// texture is square and the count a multiple of six. On OpenGL (WebGL2 in browsers) wgpu
+/// must choose a texture's binding target when it creates it, and takes such a texture for
+/// a cube map; sampled as a 2D array it then reads black.
+fn albedo_texture_layers(albedo: &TextureLayers) -> u32 {
+    let layers = albedo.layers.len() as u32;
+    if albedo.width == albedo.height && layers > 0 && layers.is_multiple_of(6) {
+        layers + 1
+    } else {
+        layers
+    }
 }
 
 fn write_albedo(queue: &wgpu::Queue, texture: &wgpu::Texture, albedo: &TextureLayers) {
@@ -1710,4 +1723,29 @@ fn create_rgba_texture(
     let t = create_2d(device, label, wgpu::TextureFormat::Rgba8Unorm, w, h);
     write_rgba(queue, &t, data, w, h);
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn layers(width: u32, height: u32, count: usize) -> TextureLayers {
+        TextureLayers {
+            width,
+            height,
+            layers: vec![vec![[0; 4]; (width * height) as usize]; count],
+        }
+    }
+
+    #[test]
+    fn square_albedo_textures_never_have_a_multiple_of_six_layers() {
+        // Six or twelve square layers would be a cube map (array) on OpenGL.
+        assert_eq!(albedo_texture_layers(&layers(8, 8, 6)), 7);
+        assert_eq!(albedo_texture_layers(&layers(8, 8, 12)), 13);
+        assert_eq!(albedo_texture_layers(&layers(8, 8, 5)), 5);
+        assert_eq!(albedo_texture_layers(&layers(8, 8, 7)), 7);
+        // Not square: never a cube.
+        assert_eq!(albedo_texture_layers(&layers(8, 4, 6)), 6);
+        assert_eq!(albedo_texture_layers(&layers(8, 8, 0)), 0);
+    }
 }

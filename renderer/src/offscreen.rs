@@ -22,6 +22,9 @@ pub struct OffscreenOptions {
     pub blend_path: Option<BlendPath>,
     /// [`RenderOptions::cull_back_faces`] (off by default).
     pub cull_back_faces: bool,
+    /// The backends to choose an adapter from; `None` is wgpu's default and `WGPU_BACKEND`.
+    /// Tests draw on OpenGL to check what WebGL2 browsers run.
+    pub backends: Option<wgpu::Backends>,
 }
 
 /// Headless convenience: its own instance/adapter/device (lavapipe on a machine without a
@@ -35,6 +38,18 @@ pub struct OffscreenRenderer {
     pub face: FaceRenderer,
     adapter: wgpu::Adapter,
     target: Option<Target>,
+    /// A readback started by [`OffscreenRenderer::begin_image`]: its size and where the
+    /// mapping callback puts its result.
+    pending: Option<PendingReadback>,
+}
+
+/// What `map_async`'s callback reports, shared with the renderer that polls for it.
+type MapResult = std::sync::Arc<std::sync::Mutex<Option<Result<(), wgpu::BufferAsyncError>>>>;
+
+struct PendingReadback {
+    width: u32,
+    height: u32,
+    mapped: MapResult,
 }
 
 impl OffscreenRenderer {
@@ -52,8 +67,11 @@ impl OffscreenRenderer {
     ) -> Result<Self, RenderError> {
         // Validate before touching the GPU: cheaper, and the error is about the input.
         mesh.validate()?;
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        if let Some(backends) = overrides.backends {
+            descriptor.backends = backends;
+        }
+        let instance = wgpu::Instance::new(descriptor);
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
             ..Default::default()
@@ -88,6 +106,29 @@ impl OffscreenRenderer {
             face,
             adapter,
             target: None,
+            pending: None,
+        })
+    }
+
+    /// An offscreen renderer on a device that already exists (the browser studio's, which
+    /// cannot make a second one cheaply), with `options` as given.
+    pub fn on_device(
+        adapter: wgpu::Adapter,
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        options: RenderOptions,
+        mesh: &MeshData,
+        albedo: &TextureLayers,
+    ) -> Result<Self, RenderError> {
+        mesh.validate()?;
+        let face = FaceRenderer::with_options(&device, &queue, FORMAT, options, mesh, albedo)?;
+        Ok(Self {
+            device,
+            queue,
+            face,
+            adapter,
+            target: None,
+            pending: None,
         })
     }
 
@@ -212,27 +253,87 @@ impl OffscreenRenderer {
     }
 
     /// Renders one frame and returns it as an image (rows top-first, display-encoded RGBA).
+    /// Blocks until the GPU is done, which a browser cannot do: there use
+    /// [`OffscreenRenderer::begin_image`] and [`OffscreenRenderer::poll_image`].
     pub fn render_image(
         &mut self,
         width: u32,
         height: u32,
         params: &FrameParams,
     ) -> Result<image::RgbaImage, RenderError> {
+        self.begin_image(width, height, params)?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        match self.poll_image() {
+            Some(result) => result,
+            None => Err(RenderError::Readback(
+                "the GPU finished but the readback was not mapped".into(),
+            )),
+        }
+    }
+
+    /// Starts rendering one frame and reading it back, without waiting; the image comes
+    /// from [`OffscreenRenderer::poll_image`]. A frame begun before is abandoned.
+    pub fn begin_image(
+        &mut self,
+        width: u32,
+        height: u32,
+        params: &FrameParams,
+    ) -> Result<(), RenderError> {
+        if let Some(old) = self.pending.take()
+            && let Some(target) = self.target.as_ref()
+            && old.mapped.lock().is_ok_and(|m| m.is_some())
+        {
+            target.readback.unmap();
+        }
         self.record(width, height, params, true)?;
         let Some(target) = self.target.as_ref() else {
             return Err(RenderError::InvalidInput("no render target".into()));
         };
-        let slice = target.readback.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
+        let mapped: MapResult = Default::default();
+        let slot = mapped.clone();
+        target
+            .readback
+            .slice(..)
+            .map_async(wgpu::MapMode::Read, move |r| {
+                if let Ok(mut slot) = slot.lock() {
+                    *slot = Some(r);
+                }
+            });
+        self.pending = Some(PendingReadback {
+            width,
+            height,
+            mapped,
         });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RenderError::Readback(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| RenderError::Readback(e.to_string()))?
-            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        Ok(())
+    }
+
+    /// The frame [`OffscreenRenderer::begin_image`] started, once the GPU has finished it
+    /// (`None` until then; the browser maps buffers between its event-loop turns).
+    pub fn poll_image(&mut self) -> Option<Result<image::RgbaImage, RenderError>> {
+        // Native backends deliver the mapping from `poll`; the browser's WebGPU from its
+        // event loop (this call is then a no-op).
+        if let Err(e) = self.device.poll(wgpu::PollType::Poll) {
+            self.pending = None;
+            return Some(Err(RenderError::Readback(e.to_string())));
+        }
+        let pending = self.pending.as_ref()?;
+        let result = pending.mapped.lock().ok()?.take()?;
+        let (width, height) = (pending.width, pending.height);
+        self.pending = None;
+        Some(
+            result
+                .map_err(|e| RenderError::Readback(e.to_string()))
+                .and_then(|()| self.read_mapped(width, height)),
+        )
+    }
+
+    fn read_mapped(&self, width: u32, height: u32) -> Result<image::RgbaImage, RenderError> {
+        let Some(target) = self.target.as_ref() else {
+            return Err(RenderError::InvalidInput("no render target".into()));
+        };
+        let slice = target.readback.slice(..);
         let row_bytes = (width * 4) as usize;
         let mut pixels = Vec::with_capacity(row_bytes * height as usize);
         {

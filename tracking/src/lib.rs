@@ -10,6 +10,7 @@
 //! depend on a GPU, a UI or the retargeting crate: the studio and the CLI wire those.
 
 pub mod backend;
+pub mod bundle;
 pub mod error;
 
 pub use backend::{BackendChoice, BackendKind, InferenceBackend, Tensor, load_model};

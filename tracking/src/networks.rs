@@ -83,11 +83,18 @@ impl Manifest {
             });
         }
         let text = std::fs::read_to_string(&path).map_err(io_error(&path))?;
+        Self::from_json(dir, &text)
+    }
+
+    /// Parses `manifest.json`'s text; `dir` is where the files it names are (and what
+    /// messages name). The browser build fetches the text instead of reading a file.
+    pub fn from_json(dir: &Path, text: &str) -> Result<Self> {
+        let path = dir.join("manifest.json");
         let bad = |reason: String| TrackingError::Manifest {
             path: path.clone(),
             reason,
         };
-        let raw: RawManifest = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        let raw: RawManifest = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
         if raw.blendshape_names.len() != NUM_BLENDSHAPES
             || raw
                 .blendshape_names
@@ -149,11 +156,17 @@ impl Manifest {
     pub fn load_mean_albedo(&self) -> Result<UvMap> {
         let path = &self.mean_albedo_file;
         let bytes = std::fs::read(path).map_err(io_error(path))?;
+        self.mean_albedo_from_bytes(&bytes)
+    }
+
+    /// [`Manifest::load_mean_albedo`] on the file's bytes (fetched in the browser).
+    pub fn mean_albedo_from_bytes(&self, bytes: &[u8]) -> Result<UvMap> {
+        let path = &self.mean_albedo_file;
         let bad = |reason: String| TrackingError::Manifest {
             path: path.clone(),
             reason,
         };
-        let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
+        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| bad(e.to_string()))?;
         let view = st
             .tensor(&self.mean_albedo_tensor)
             .map_err(|e| bad(e.to_string()))?;
@@ -336,6 +349,14 @@ impl ModelNet {
             model: load_model(&path, kind, threads)?,
             manifest: manifest.clone(),
         })
+    }
+
+    /// ModelNet on any backend (the browser's tract model read from fetched bytes).
+    pub fn from_backend(model: Box<dyn InferenceBackend>, manifest: &Manifest) -> Self {
+        Self {
+            model,
+            manifest: manifest.clone(),
+        }
     }
 
     pub fn kind(&self) -> BackendKind {

@@ -48,7 +48,7 @@
 //! rather than counting the corner twice.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use web_time::Instant;
 
 use glam::Vec2;
 use image::RgbImage;
@@ -318,11 +318,27 @@ impl OpenSeeFace {
             .map_err(|e| damaged_model(&detector_path, e))?;
         let landmark_network = load_model(&landmark_path, kind, threads)
             .map_err(|e| damaged_model(&landmark_path, e))?;
+        Self::from_backends(
+            (detector, &detector_path),
+            (landmark_network, &landmark_path),
+        )
+    }
+
+    /// Both networks already loaded (the browser reads them from fetched bytes), each with
+    /// the path its messages name; checked by one run on a blank input as in
+    /// [`OpenSeeFace::load`].
+    pub fn from_backends(
+        detector: (Box<dyn InferenceBackend>, &Path),
+        landmark_network: (Box<dyn InferenceBackend>, &Path),
+    ) -> Result<Self> {
+        let (detector, detector_path) = detector;
+        let (landmark_network, landmark_path) = landmark_network;
+        let kind = detector.kind();
         let mut tracker = Self {
             detector,
             landmark_network,
-            detector_name: display_name(&detector_path),
-            landmark_name: display_name(&landmark_path),
+            detector_name: display_name(detector_path),
+            landmark_name: display_name(landmark_path),
             kind,
             detection_threshold: DEFAULT_DETECTION_THRESHOLD,
             overlap_threshold: DEFAULT_OVERLAP_THRESHOLD,
@@ -330,10 +346,10 @@ impl OpenSeeFace {
         let blank = Tensor::zeros(vec![1, 3, INPUT_SIZE, INPUT_SIZE]);
         tracker
             .run_detector(&blank)
-            .map_err(|e| damaged_model(&detector_path, e))?;
+            .map_err(|e| damaged_model(detector_path, e))?;
         tracker
             .run_landmark_network(&blank)
-            .map_err(|e| damaged_model(&landmark_path, e))?;
+            .map_err(|e| damaged_model(landmark_path, e))?;
         Ok(tracker)
     }
 

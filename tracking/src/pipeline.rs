@@ -5,7 +5,7 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::mpsc;
-use std::time::Instant;
+use web_time::Instant;
 
 use face::camera::{Intrinsics, focal_length_px};
 use face::{FaceModel, NUM_LANDMARKS, PersonalizedBlendshapes};
@@ -229,6 +229,33 @@ impl Tracker {
                 }
             }
         };
+        Self::assemble(face, config, manifest, track_net, locator)
+    }
+
+    /// A tracker from networks already loaded (the browser reads them from fetched bytes):
+    /// `follower` finds the face in footage; without it every image is taken as a face
+    /// crop framed like the training images.
+    pub fn from_parts(
+        face: Arc<FaceModel>,
+        config: TrackerConfig,
+        manifest: Manifest,
+        track_net: TrackNet,
+        follower: Option<FaceFollower>,
+    ) -> Result<Self> {
+        let locator = match follower {
+            Some(follower) => Locator::Landmarks(Box::new(follower)),
+            None => Locator::PreCropped,
+        };
+        Self::assemble(face, config, manifest, track_net, locator)
+    }
+
+    fn assemble(
+        face: Arc<FaceModel>,
+        config: TrackerConfig,
+        manifest: Manifest,
+        track_net: TrackNet,
+        locator: Locator,
+    ) -> Result<Self> {
         let blendshapes = Arc::new(face.template_blendshapes());
         let refiner = Refiner::new(&blendshapes, &face.template)?;
         let smoother = FaceParamsSmoother::new(config.smoothing.clone());

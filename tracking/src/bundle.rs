@@ -1,0 +1,131 @@
+//! The networks as bytes in memory: what the browser build has after fetching them from
+//! the served directory, where there is no file system to load them from. Everything runs
+//! on tract (pure Rust); the trackers and ModelNets made here are the same as the ones
+//! [`Tracker::new`] and [`ModelNet::load`] make from files.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use face::FaceModel;
+use face::uv::UvMap;
+
+use crate::BackendKind;
+use crate::backend::TractModel;
+use crate::error::{Result, TrackingError};
+use crate::networks::{Manifest, ModelNet, TrackNet};
+use crate::openseeface::{FaceFollower, OpenSeeFace, model_files};
+use crate::pipeline::{Tracker, TrackerConfig};
+
+/// A file's bytes with the name messages give it (its URL or path).
+#[derive(Clone, Debug)]
+pub struct NamedBytes {
+    pub name: PathBuf,
+    pub bytes: Arc<[u8]>,
+}
+
+impl NamedBytes {
+    pub fn new(name: impl Into<PathBuf>, bytes: impl Into<Arc<[u8]>>) -> Self {
+        Self {
+            name: name.into(),
+            bytes: bytes.into(),
+        }
+    }
+
+    /// Reads `path` (native tests build bundles from the repository's files).
+    pub fn read(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|source| match source.kind() {
+            std::io::ErrorKind::NotFound => TrackingError::MissingModel {
+                path: path.to_owned(),
+                hint: "no such file".into(),
+            },
+            _ => TrackingError::Io {
+                path: path.to_owned(),
+                source,
+            },
+        })?;
+        Ok(Self::new(path, bytes))
+    }
+
+    fn tract(&self) -> Result<TractModel> {
+        let name = self.name.file_name().map_or_else(
+            || self.name.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        TractModel::from_bytes(&name, &self.bytes)
+    }
+}
+
+/// TrackNet, ModelNet, their manifest and mean albedo, and (for footage) the OpenSeeFace
+/// detector and landmark network, as bytes.
+#[derive(Clone, Debug)]
+pub struct NetworkBytes {
+    pub manifest: Manifest,
+    pub track_net: NamedBytes,
+    pub model_net: NamedBytes,
+    pub mean_albedo: NamedBytes,
+    /// The OpenSeeFace `_plain_b1` detector and landmark network; without them only
+    /// pre-cropped faces can be tracked.
+    pub openseeface: Option<(NamedBytes, NamedBytes)>,
+}
+
+impl NetworkBytes {
+    /// The bundle of the files in `networks_dir` (as [`Manifest::load`] reads it) and, when
+    /// given, the tract variants of the OpenSeeFace models in `models_dir`.
+    pub fn read(networks_dir: &Path, models_dir: Option<&Path>) -> Result<Self> {
+        let manifest = Manifest::load(networks_dir)?;
+        let openseeface = match models_dir {
+            Some(dir) => {
+                let (detector, landmarks) = model_files(dir, BackendKind::Tract);
+                Some((NamedBytes::read(&detector)?, NamedBytes::read(&landmarks)?))
+            }
+            None => None,
+        };
+        Ok(Self {
+            track_net: NamedBytes::read(&networks_dir.join("track_net.onnx"))?,
+            model_net: NamedBytes::read(&networks_dir.join("model_net.onnx"))?,
+            mean_albedo: NamedBytes::read(&manifest.mean_albedo_file)?,
+            manifest,
+            openseeface,
+        })
+    }
+
+    /// A tracker on tract. `footage` says the input is real footage, which needs the
+    /// OpenSeeFace models to find the face.
+    pub fn tracker(
+        &self,
+        face: Arc<FaceModel>,
+        config: TrackerConfig,
+        footage: bool,
+    ) -> Result<Tracker> {
+        let track_net = TrackNet::from_backend(Box::new(self.track_net.tract()?), &self.manifest);
+        let follower = match &self.openseeface {
+            Some((detector, landmarks)) => Some(FaceFollower::new(OpenSeeFace::from_backends(
+                (Box::new(detector.tract()?), &detector.name),
+                (Box::new(landmarks.tract()?), &landmarks.name),
+            )?)),
+            None if footage => {
+                return Err(TrackingError::InvalidInput(
+                    "real footage needs face detection: the OpenSeeFace models \
+                     (mnv3_detection_plain_b1.onnx, lm_model0_plain_b1.onnx) were not loaded"
+                        .into(),
+                ));
+            }
+            None => None,
+        };
+        Tracker::from_parts(face, config, self.manifest.clone(), track_net, follower)
+    }
+
+    /// ModelNet on tract.
+    pub fn model_net(&self) -> Result<ModelNet> {
+        Ok(ModelNet::from_backend(
+            Box::new(self.model_net.tract()?),
+            &self.manifest,
+        ))
+    }
+
+    /// R_0^t, the trained mean albedo.
+    pub fn load_mean_albedo(&self) -> Result<UvMap> {
+        self.manifest
+            .mean_albedo_from_bytes(&self.mean_albedo.bytes)
+    }
+}

@@ -1,0 +1,356 @@
+//! The page: fetches what the studio needs, starts the studio on the canvas, and keeps
+//! `window.likeness` (what the page reports: status, timings, tracking rate) up to date.
+
+use std::cell::Cell;
+use std::path::Path;
+use std::rc::Rc;
+use std::sync::Arc;
+
+use likeness::scene::Scene;
+use likeness::studio::StudioApp;
+use likeness::web_host::WebHost;
+use tracking::bundle::{NamedBytes, NetworkBytes};
+use wasm_bindgen::JsCast;
+use wasm_bindgen::prelude::*;
+use wasm_bindgen_futures::JsFuture;
+
+use crate::host::PageHost;
+use crate::{Asset, Fetched, REQUIRED_ASSETS, missing_message};
+
+/// `window.likeness`: what the page reports, read by people (the status line) and by the
+/// end-to-end test.
+struct Report {
+    object: js_sys::Object,
+}
+
+impl Report {
+    fn new() -> Self {
+        let object = js_sys::Object::new();
+        if let Some(window) = web_sys::window() {
+            let _ = js_sys::Reflect::set(&window, &"likeness".into(), &object);
+        }
+        Self { object }
+    }
+
+    fn set(&self, key: &str, value: impl Into<JsValue>) {
+        let _ = js_sys::Reflect::set(&self.object, &key.into(), &value.into());
+    }
+
+    /// The status line under the canvas, and `window.likeness.status`.
+    fn status(&self, text: &str, is_error: bool) {
+        self.set("status", text);
+        if is_error {
+            self.set("error", text);
+        }
+        if let Some(element) = web_sys::window()
+            .and_then(|w| w.document())
+            .and_then(|d| d.get_element_by_id("status"))
+        {
+            element.set_text_content(Some(text));
+            let _ = element.set_attribute("class", if is_error { "error" } else { "" });
+        }
+    }
+}
+
+fn now_ms() -> f64 {
+    web_sys::window()
+        .and_then(|w| w.performance())
+        .map_or(0.0, |p| p.now())
+}
+
+/// Fetches `url`: `Ok(None)` when the server says it is not there (404), an error for
+/// anything else that goes wrong.
+async fn fetch_bytes(url: &str) -> Result<Option<Vec<u8>>, String> {
+    let window = web_sys::window().ok_or("no window")?;
+    let response = JsFuture::from(window.fetch_with_str(url))
+        .await
+        .map_err(|e| format!("{url}: {}", js_error(&e)))?;
+    let response: web_sys::Response = response
+        .dyn_into()
+        .map_err(|_| format!("{url}: not a response"))?;
+    if response.status() == 404 {
+        return Ok(None);
+    }
+    if !response.ok() {
+        return Err(format!("{url}: HTTP {}", response.status()));
+    }
+    let buffer = JsFuture::from(
+        response
+            .array_buffer()
+            .map_err(|e| format!("{url}: {}", js_error(&e)))?,
+    )
+    .await
+    .map_err(|e| format!("{url}: {}", js_error(&e)))?;
+    Ok(Some(js_sys::Uint8Array::new(&buffer).to_vec()))
+}
+
+pub(crate) fn js_error(value: &JsValue) -> String {
+    value
+        .dyn_ref::<js_sys::Error>()
+        .map(|e| String::from(e.message()))
+        .or_else(|| value.as_string())
+        .unwrap_or_else(|| format!("{value:?}"))
+}
+
+/// Yields to the browser so the status line is drawn before a long synchronous step.
+async fn next_tick() {
+    let promise = js_sys::Promise::new(&mut |resolve, _| {
+        if let Some(window) = web_sys::window() {
+            let _ = window.set_timeout_with_callback_and_timeout_and_arguments_0(&resolve, 0);
+        }
+    });
+    let _ = JsFuture::from(promise).await;
+}
+
+#[wasm_bindgen(start)]
+pub fn start() {
+    // A panic is the page's error too (the test and the status line see it), then the
+    // console's, with its stack.
+    std::panic::set_hook(Box::new(|info| {
+        let report = Report::new_shared();
+        report.status(&format!("Likeness stopped: {info}"), true);
+        console_error_panic_hook::hook(info);
+    }));
+    tracing_wasm::set_as_global_default();
+    wasm_bindgen_futures::spawn_local(async {
+        let report = Report::new();
+        if let Err(e) = run(&report).await {
+            report.status(&e, true);
+        }
+    });
+}
+
+async fn run(report: &Report) -> Result<(), String> {
+    report.set("startedMs", now_ms());
+    let mut fetched = Fetched::default();
+    let mut missing = Vec::new();
+    for asset in REQUIRED_ASSETS {
+        report.status(&format!("loading {}...", asset.url), false);
+        match fetch_bytes(asset.url).await? {
+            Some(bytes) => fetched.insert(asset, bytes),
+            None => missing.push(asset),
+        }
+    }
+    if !missing.is_empty() {
+        return Err(missing_message(&missing));
+    }
+    report.set("assetsMs", now_ms());
+    report.status("reading the face template...", false);
+    next_tick().await;
+    let scene = make_scene(&mut fetched)?;
+    report.set("sceneMs", now_ms());
+    report.status("starting the studio...", false);
+    let canvas = web_sys::window()
+        .and_then(|w| w.document())
+        .and_then(|d| d.get_element_by_id("likeness"))
+        .and_then(|e| e.dyn_into::<web_sys::HtmlCanvasElement>().ok())
+        .ok_or("the page has no <canvas id=\"likeness\">")?;
+    let puppet = fetched.take(&crate::DEMO_PUPPET);
+    let runner = eframe::WebRunner::new();
+    let options = eframe::WebOptions::default();
+    let scene = Arc::new(scene);
+    let started = Rc::new(Cell::new(false));
+    let started_in_app = started.clone();
+    runner
+        .start(
+            canvas,
+            options,
+            Box::new(move |cc| {
+                let mut studio = StudioApp::new(cc, scene);
+                let host: Rc<dyn WebHost> = Rc::new(PageHost::new());
+                studio.web_host = Some(host);
+                if let Some(bytes) = puppet {
+                    studio.puppet_panel.demo_puppet_bytes = Some(likeness::web_host::PickedFile {
+                        name: crate::DEMO_PUPPET.url.to_owned(),
+                        bytes: bytes.into(),
+                    });
+                }
+                let backend = match cc.wgpu_render_state.as_ref() {
+                    Some(rs) => {
+                        let info = rs.adapter.get_info();
+                        let backend = format!("{:?} ({})", info.backend, info.name);
+                        studio.start_demo_in_steps(rs);
+                        backend
+                    }
+                    None => "none".to_owned(),
+                };
+                started_in_app.set(true);
+                Ok(Box::new(WebStudio {
+                    studio,
+                    report: Report::new_shared(),
+                    backend,
+                    frames: 0,
+                    demo_reported: false,
+                }))
+            }),
+        )
+        .await
+        .map_err(|e| format!("the studio could not start: {}", js_error(&e)))?;
+    if !started.get() {
+        return Err("the studio could not start".into());
+    }
+    // The runner lives as long as the page.
+    std::mem::forget(runner);
+    Ok(())
+}
+
+/// The template and networks from fetched bytes.
+fn make_scene(fetched: &mut Fetched) -> Result<Scene, String> {
+    let template_bytes = fetched
+        .take(&crate::TEMPLATE)
+        .ok_or("the template was not fetched")?;
+    let template =
+        face::Template::from_safetensors_bytes(&template_bytes, Path::new(crate::TEMPLATE.url))
+            .map_err(|e| format!("{}: {e}", crate::TEMPLATE.url))?;
+    let manifest_text = fetched
+        .take(&crate::MANIFEST)
+        .ok_or("the manifest was not fetched")?;
+    let manifest_text = String::from_utf8(manifest_text)
+        .map_err(|_| format!("{}: not UTF-8 text", crate::MANIFEST.url))?;
+    let manifest = tracking::networks::Manifest::from_json(Path::new("models"), &manifest_text)
+        .map_err(|e| e.to_string())?;
+    let mut named = |asset: &Asset| -> Result<NamedBytes, String> {
+        let bytes = fetched
+            .take(asset)
+            .ok_or_else(|| format!("{} was not fetched", asset.url))?;
+        Ok(NamedBytes::new(asset.url, bytes))
+    };
+    let networks = NetworkBytes {
+        track_net: named(&crate::TRACK_NET)?,
+        model_net: named(&crate::MODEL_NET)?,
+        mean_albedo: named(&crate::MEAN_ALBEDO)?,
+        openseeface: Some((named(&crate::DETECTOR)?, named(&crate::LANDMARKS)?)),
+        manifest,
+    };
+    let mut scene = Scene::from_template(template);
+    scene.networks = Some(Arc::new(networks));
+    Ok(scene)
+}
+
+/// The studio with the page's reporting around it.
+struct WebStudio {
+    studio: StudioApp,
+    report: Report,
+    backend: String,
+    frames: u64,
+    demo_reported: bool,
+}
+
+impl Report {
+    fn new_shared() -> Self {
+        let object = web_sys::window()
+            .and_then(|w| js_sys::Reflect::get(&w, &"likeness".into()).ok())
+            .and_then(|v| v.dyn_into::<js_sys::Object>().ok())
+            .unwrap_or_default();
+        Self { object }
+    }
+}
+
+impl eframe::App for WebStudio {
+    fn clear_color(&self, visuals: &egui::Visuals) -> [f32; 4] {
+        self.studio.clear_color(visuals)
+    }
+
+    fn save(&mut self, storage: &mut dyn eframe::Storage) {
+        self.studio.save(storage);
+    }
+
+    fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+        self.studio.ui(ui, frame);
+        self.frames += 1;
+        if self.frames == 1 {
+            self.report.set("firstFrameMs", now_ms());
+            self.report.set("backend", self.backend.as_str());
+            self.report
+                .status(&format!("studio running on {}", self.backend), false);
+        }
+        self.report.set("frames", self.frames as f64);
+        // What the studio holds now, for people reading the page and for the tests.
+        match self.studio.session() {
+            Some(session) => {
+                self.report.set("sessionSource", session.source.as_str());
+                self.report
+                    .set("sessionFrames", session.frame_count() as f64);
+            }
+            None => self.report.set("sessionSource", JsValue::NULL),
+        }
+        let puppet = self
+            .studio
+            .puppet_panel
+            .puppet
+            .as_ref()
+            .map(|p| p.path.display().to_string());
+        self.report
+            .set("puppet", puppet.map_or(JsValue::NULL, JsValue::from));
+        match self.studio.job() {
+            Some(job) => self.report.set(
+                "job",
+                format!(
+                    "{}: {} {}",
+                    job.input, job.progress.stage, job.progress.done
+                ),
+            ),
+            None => self.report.set("job", JsValue::NULL),
+        }
+        if let Some(job) = self.studio.demo_job() {
+            let p = &job.progress;
+            let total = p.total.map_or(String::new(), |t| format!(" / {t}"));
+            self.report
+                .status(&format!("demo: {} {}{total}", p.stage, p.done), false);
+        }
+        if !self.demo_reported
+            && let Some(session) = self.studio.session()
+        {
+            self.demo_reported = true;
+            self.report.set("demoReadyMs", now_ms());
+            self.report
+                .set("sessionFrames", session.frame_count() as f64);
+            if let Some(rate) = self.studio.tracking_rate {
+                self.report.set("trackedFrames", rate.frames as f64);
+                self.report.set("trackingSeconds", rate.seconds);
+                self.report.set("trackingWallSeconds", rate.wall_seconds);
+                if let Some(fps) = rate.wall_fps() {
+                    self.report.set("trackingWallFps", fps);
+                }
+                // Mean milliseconds per frame in each stage.
+                let n = rate.frames.max(1) as f64;
+                let t = &rate.stage_ms;
+                let stages = js_sys::Object::new();
+                for (name, ms) in [
+                    ("detect", t.detect_ms),
+                    ("landmarks", t.landmarks_ms),
+                    ("crop", t.crop_ms),
+                    ("tracknet", t.tracknet_ms),
+                    ("refine", t.refine_ms),
+                    ("smooth", t.smooth_ms),
+                ] {
+                    let _ = js_sys::Reflect::set(&stages, &name.into(), &(ms / n).into());
+                }
+                self.report.set("trackingStageMs", stages);
+                if let Some(fps) = rate.fps() {
+                    self.report.set("trackingFps", fps);
+                }
+            }
+            self.report.status(
+                &format!(
+                    "demo ready: {} frames tracked at {:.1} fps on {}",
+                    session.frame_count(),
+                    self.studio
+                        .tracking_rate
+                        .and_then(|r| r.fps())
+                        .unwrap_or(0.0),
+                    self.backend
+                ),
+                false,
+            );
+        }
+        // An error shown in the studio is also the page's, for the test to see.
+        if let Some(error) = self.studio.state.notices.latest_error() {
+            self.report.set("lastError", error);
+        }
+    }
+
+    fn on_exit(&mut self) {
+        self.studio.on_exit();
+    }
+}

@@ -1,0 +1,253 @@
+// The browser build end to end in Debian's headless Chromium (WebGL2 on SwiftShader; headless
+// Chromium has no WebGPU adapter), driven by playwright-core:
+//   1. the page loads, fetches the template and the networks, starts the studio, and the 3D
+//      view shows the template face (pixel checks on a screenshot);
+//   2. the built-in demo runs in the page: the clip is rendered by the studio's renderer,
+//      tracked and personalized by the tract networks in wasm, and the input panel then shows
+//      the rendered face (pixel checks again); the page's own tracking rate is printed;
+//   3. with the template missing from the served folder the page says which file is missing
+//      and where to get it.
+// Budgets are printed as a table: wasm size gzipped, time to first frame, demo ready, tracking
+// fps in the page.
+//
+//   node web/tests/e2e.mjs [--dist web/dist] [--out web/test-output]
+import { spawn } from "node:child_process";
+import fs from "node:fs";
+import os from "node:os";
+import path from "node:path";
+import zlib from "node:zlib";
+import { fileURLToPath } from "node:url";
+import { chromium } from "playwright-core";
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const args = process.argv.slice(2);
+const arg = (name, fallback) => {
+  const i = args.indexOf(name);
+  return i >= 0 ? args[i + 1] : fallback;
+};
+const dist = path.resolve(arg("--dist", path.join(here, "..", "dist")));
+const out = path.resolve(arg("--out", path.join(here, "..", "test-output")));
+const demoTimeoutMs = Number(arg("--demo-timeout-s", "900")) * 1000;
+fs.mkdirSync(out, { recursive: true });
+
+let failures = 0;
+function check(ok, what) {
+  console.log(`${ok ? "ok  " : "FAIL"} ${what}`);
+  if (!ok) failures += 1;
+}
+
+/** Starts web/serve.py on a free port; resolves to { url, stop }. */
+function serve(directory) {
+  return new Promise((resolve, reject) => {
+    const server = spawn("python3", [path.join(here, "..", "serve.py"), "--port", "0", "--quiet",
+      "--directory", directory], { stdio: ["ignore", "pipe", "inherit"] });
+    server.on("error", reject);
+    server.stdout.on("data", (chunk) => {
+      const match = /http:\/\/127\.0\.0\.1:(\d+)\//.exec(String(chunk));
+      if (match) resolve({ url: match[0], stop: () => server.kill() });
+    });
+    server.on("exit", (code) => reject(new Error(`serve.py exited with ${code}`)));
+  });
+}
+
+/** Decodes an 8-bit RGB(A), non-interlaced PNG (what Chromium's screenshots are). */
+function decodePng(buffer) {
+  let offset = 8;
+  let width = 0, height = 0, channels = 0;
+  const idat = [];
+  while (offset < buffer.length) {
+    const length = buffer.readUInt32BE(offset);
+    const type = buffer.toString("ascii", offset + 4, offset + 8);
+    const data = buffer.subarray(offset + 8, offset + 8 + length);
+    if (type === "IHDR") {
+      width = data.readUInt32BE(0);
+      height = data.readUInt32BE(4);
+      const [depth, colour, , , interlace] = [data[8], data[9], data[10], data[11], data[12]];
+      if (depth !== 8 || interlace !== 0 || (colour !== 2 && colour !== 6)) {
+        throw new Error(`unsupported PNG (depth ${depth}, colour ${colour}, interlace ${interlace})`);
+      }
+      channels = colour === 6 ? 4 : 3;
+    } else if (type === "IDAT") {
+      idat.push(data);
+    }
+    offset += 12 + length;
+  }
+  const raw = zlib.inflateSync(Buffer.concat(idat));
+  const stride = width * channels;
+  const pixels = Buffer.alloc(height * stride);
+  for (let y = 0; y < height; y++) {
+    const filter = raw[y * (stride + 1)];
+    const line = raw.subarray(y * (stride + 1) + 1, (y + 1) * (stride + 1));
+    for (let x = 0; x < stride; x++) {
+      const a = x >= channels ? pixels[y * stride + x - channels] : 0;
+      const b = y > 0 ? pixels[(y - 1) * stride + x] : 0;
+      const c = x >= channels && y > 0 ? pixels[(y - 1) * stride + x - channels] : 0;
+      let value = line[x];
+      if (filter === 1) value += a;
+      else if (filter === 2) value += b;
+      else if (filter === 3) value += (a + b) >> 1;
+      else if (filter === 4) {
+        const p = a + b - c;
+        const pa = Math.abs(p - a), pb = Math.abs(p - b), pc = Math.abs(p - c);
+        value += pa <= pb && pa <= pc ? a : pb <= pc ? b : c;
+      }
+      pixels[y * stride + x] = value & 255;
+    }
+  }
+  return { width, height, channels, pixels };
+}
+
+/**
+ * Skin-coloured pixels in a rectangle (fractions of the image): red above green above blue,
+ * bright enough, and not grey. The studio's background and panels are grey, so what counts
+ * here is the face the renderer drew.
+ */
+function skinStats(png, rect) {
+  const [x0, y0, x1, y1] = [rect[0] * png.width, rect[1] * png.height, rect[2] * png.width,
+    rect[3] * png.height].map(Math.round);
+  let skin = 0, total = 0;
+  let lumaSum = 0, lumaSq = 0;
+  for (let y = y0; y < y1; y++) {
+    for (let x = x0; x < x1; x++) {
+      const i = (y * png.width + x) * png.channels;
+      const [r, g, b] = [png.pixels[i], png.pixels[i + 1], png.pixels[i + 2]];
+      const luma = 0.299 * r + 0.587 * g + 0.114 * b;
+      lumaSum += luma;
+      lumaSq += luma * luma;
+      total += 1;
+      if (r > 90 && r > g + 12 && g > b && r - b > 30) skin += 1;
+    }
+  }
+  const mean = lumaSum / total;
+  return { skinFraction: skin / total, lumaStd: Math.sqrt(Math.max(0, lumaSq / total - mean * mean)) };
+}
+
+async function launch() {
+  return chromium.launch({
+    executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+    headless: true,
+    args: ["--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
+      "--disable-background-networking", "--disable-component-update", "--disable-sync",
+      "--no-first-run", "--disable-dev-shm-usage"],
+  });
+}
+
+async function waitFor(page, predicate, timeoutMs, what) {
+  const started = Date.now();
+  for (;;) {
+    const state = await page.evaluate(() => window.likeness || {});
+    if (state.error) throw new Error(`the page reports an error while waiting for ${what}: ${state.error}`);
+    if (state.lastError) throw new Error(`the studio shows an error while waiting for ${what}: ${state.lastError}`);
+    if (predicate(state)) return state;
+    if (Date.now() - started > timeoutMs) {
+      throw new Error(`timed out after ${timeoutMs / 1000} s waiting for ${what}; page: ${JSON.stringify(state)}`);
+    }
+    await new Promise((r) => setTimeout(r, 250));
+  }
+}
+
+async function demoRun(browser) {
+  const server = await serve(dist);
+  const page = await browser.newPage({ viewport: { width: 1280, height: 720 } });
+  const console_ = [];
+  page.on("console", (m) => console_.push(`${m.type()}: ${m.text()}`));
+  page.on("pageerror", (e) => console_.push(`pageerror: ${e.message}`));
+  try {
+    await page.goto(server.url);
+    const first = await waitFor(page, (s) => s.firstFrameMs > 0, 300_000, "the first frame");
+    check(/Gl|WebGpu|BrowserWebGpu/i.test(first.backend || ""), `studio renders on ${first.backend}`);
+    // The template face plays in the face panel while the demo is made.
+    await page.waitForTimeout(1500);
+    const facePng = await page.screenshot({ path: path.join(out, "face_panel.png") });
+    // The 3D view is the middle of the window, right of the blendshape list.
+    const face = skinStats(decodePng(facePng), [0.35, 0.15, 0.95, 0.9]);
+    check(face.skinFraction > 0.04 && face.lumaStd > 8,
+      `face panel shows a rendered face (skin ${(100 * face.skinFraction).toFixed(1)} % of the view, luma std ${face.lumaStd.toFixed(1)})`);
+
+    const ready = await waitFor(page, (s) => s.demoReadyMs > 0, demoTimeoutMs, "the demo");
+    await page.waitForTimeout(1000);
+    const inputPng = await page.screenshot({ path: path.join(out, "input_panel.png") });
+    const input = skinStats(decodePng(inputPng), [0.3, 0.1, 0.98, 0.85]);
+    check(input.skinFraction > 0.03 && input.lumaStd > 8,
+      `input panel shows the demo's rendered face (skin ${(100 * input.skinFraction).toFixed(1)} %, luma std ${input.lumaStd.toFixed(1)})`);
+    check(ready.sessionFrames === 96, `the demo session has ${ready.sessionFrames} frames (96 expected)`);
+    check(ready.trackedFrames === 96 && ready.trackingFps > 0,
+      `the page tracked ${ready.trackedFrames} frames at ${Number(ready.trackingFps).toFixed(1)} fps`);
+    check(!ready.lastError, `no error toast (${ready.lastError || "none"})`);
+    const wasm = fs.readFileSync(path.join(dist, "likeness_web_bg.wasm"));
+    const gzipped = zlib.gzipSync(wasm, { level: 9 }).length;
+    return {
+      backend: ready.backend,
+      wasmBytes: wasm.length,
+      wasmGzipBytes: gzipped,
+      assetsMs: ready.assetsMs,
+      sceneMs: ready.sceneMs,
+      firstFrameMs: ready.firstFrameMs,
+      demoReadyMs: ready.demoReadyMs,
+      trackingFps: ready.trackingFps,
+      trackedFrames: ready.trackedFrames,
+      trackingSeconds: ready.trackingSeconds,
+      trackingWallFps: ready.trackingWallFps,
+      trackingStageMs: ready.trackingStageMs,
+    };
+  } catch (e) {
+    console.log(console_.slice(-40).join("\n"));
+    throw e;
+  } finally {
+    await page.close();
+    server.stop();
+  }
+}
+
+/** The served folder without the template: the page must say what is missing. */
+async function missingTemplateRun(browser) {
+  const partial = fs.mkdtempSync(path.join(os.tmpdir(), "likeness-web-partial-"));
+  for (const name of fs.readdirSync(dist)) {
+    if (name !== "facemodel") fs.symlinkSync(fs.realpathSync(path.join(dist, name)), path.join(partial, name));
+  }
+  const server = await serve(partial);
+  const page = await browser.newPage();
+  try {
+    await page.goto(server.url);
+    const started = Date.now();
+    let state = {};
+    while (!state.error && Date.now() - started < 120_000) {
+      await page.waitForTimeout(250);
+      state = await page.evaluate(() => window.likeness || {});
+    }
+    const shown = await page.textContent("#status");
+    check(/facemodel\/ict_face_model\.safetensors/.test(shown) && /ICT-FaceKit/.test(shown),
+      `without the template the page says so: "${shown.slice(0, 120)}..."`);
+    check(!/lm_model0/.test(shown), "and names only what is missing");
+  } finally {
+    await page.close();
+    server.stop();
+    fs.rmSync(partial, { recursive: true, force: true });
+  }
+}
+
+const browser = await launch();
+let budgets;
+try {
+  budgets = await demoRun(browser);
+  await missingTemplateRun(browser);
+} finally {
+  await browser.close();
+}
+const mb = (n) => (n / 1e6).toFixed(2);
+const s = (ms) => (ms / 1000).toFixed(1);
+console.log("\nBudgets (headless Chromium, " + budgets.backend + "):");
+console.log("| wasm | wasm gzipped | assets fetched | template read | first frame | demo ready | tracking fps, tracker time (frames / s) | tracking fps, wall clock with the studio drawing |");
+console.log("|---|---|---|---|---|---|---|---|");
+console.log(`| ${mb(budgets.wasmBytes)} MB | ${mb(budgets.wasmGzipBytes)} MB | ${s(budgets.assetsMs)} s | ${s(budgets.sceneMs)} s | ${s(budgets.firstFrameMs)} s | ${s(budgets.demoReadyMs)} s | ${Number(budgets.trackingFps).toFixed(1)} (${budgets.trackedFrames} / ${Number(budgets.trackingSeconds).toFixed(1)}) | ${Number(budgets.trackingWallFps).toFixed(1)} |`);
+const stages = budgets.trackingStageMs || {};
+console.log("\nTracker time per frame in the page (ms, mean over the demo clip):");
+console.log("| " + Object.keys(stages).join(" | ") + " |");
+console.log("|" + Object.keys(stages).map(() => "---|").join(""));
+console.log("| " + Object.values(stages).map((v) => Number(v).toFixed(2)).join(" | ") + " |");
+fs.writeFileSync(path.join(out, "budgets.json"), JSON.stringify(budgets, null, 2));
+if (failures > 0) {
+  console.log(`\n${failures} check(s) failed`);
+  process.exit(1);
+}
+console.log("\nall browser checks passed");
