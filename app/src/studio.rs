@@ -669,6 +669,7 @@ impl StudioApp {
             {
                 self.settings.reduce_3d_while_playing = Some(reduce);
             }
+            #[cfg(not(target_arch = "wasm32"))]
             ui.separator();
             #[cfg(not(target_arch = "wasm32"))]
             if ui
@@ -1085,8 +1086,21 @@ impl StudioApp {
     #[cfg(target_arch = "wasm32")]
     fn start_feed(&mut self, input: &str, feed: crate::stepped::FrameFeed) {
         match FootageJob::start_feed(self.scene.clone(), input.to_owned(), feed) {
-            Ok(job) => self.job = Some(job),
+            Ok(job) => {
+                self.job = Some(job);
+                self.stop_demo_for("your footage");
+            }
             Err(e) => self.state.notices.error(format!("{input}: {e:#}")),
+        }
+    }
+
+    /// The user's own footage or session comes first: a demo still being made would
+    /// replace it when it ends, so it stops.
+    fn stop_demo_for(&mut self, what: &str) {
+        if self.demo_job.take().is_some() {
+            self.state
+                .notices
+                .message(format!("stopped making the demo for {what}"));
         }
     }
 
@@ -1122,6 +1136,7 @@ impl StudioApp {
                             session.frame_count()
                         ));
                         self.set_session(Arc::new(session));
+                        self.stop_demo_for(&file.name);
                     }
                     Err(e) => self.state.notices.error(e),
                 }

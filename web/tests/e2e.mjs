@@ -5,13 +5,17 @@
 //   2. the built-in demo runs in the page: the clip is rendered by the studio's renderer,
 //      tracked and personalized by the tract networks in wasm, and the input panel then shows
 //      the rendered face (pixel checks again); the page's own tracking rate is printed;
-//   3. with the template missing from the served folder the page says which file is missing
+//   3. what a visitor brings, through the real UI: File > Save session downloads the session;
+//      a puppet, two images and a video dropped on the page load and are tracked into
+//      sessions; File > Record from webcam records Chromium's fake camera (fed a real face)
+//      until Stop recording, and the recording becomes a session;
+//   4. with the template missing from the served folder the page says which file is missing
 //      and where to get it.
 // Budgets are printed as a table: wasm size gzipped, time to first frame, demo ready, tracking
 // fps in the page.
 //
 //   node web/tests/e2e.mjs [--dist web/dist] [--out web/test-output]
-import { spawn } from "node:child_process";
+import { spawn, spawnSync } from "node:child_process";
 import fs from "node:fs";
 import os from "node:os";
 import path from "node:path";
@@ -29,6 +33,12 @@ const dist = path.resolve(arg("--dist", path.join(here, "..", "dist")));
 const out = path.resolve(arg("--out", path.join(here, "..", "test-output")));
 const demoTimeoutMs = Number(arg("--demo-timeout-s", "900")) * 1000;
 fs.mkdirSync(out, { recursive: true });
+
+const repo = path.resolve(here, "..", "..");
+// A real face (OpenSeeFace's test crop, BSD-2) from the shared test data, never copied into
+// the repository: the media below are made from it in the output folder.
+const testFace = path.resolve(process.env.LIKENESS_TEST_FACE
+  || path.join(repo, "..", "shared", "testdata", "faces", "openseeface-raw1.png"));
 
 let failures = 0;
 function check(ok, what) {
@@ -48,6 +58,59 @@ function serve(directory) {
     });
     server.on("exit", (code) => reject(new Error(`serve.py exited with ${code}`)));
   });
+}
+
+/**
+ * Footage with a real face for the drops and the fake camera: the 224x224 crop centred in a
+ * 640x480 grey frame (as a webcam would frame a face), mirrored for a second image, as a
+ * 1 s WebM at 30 fps and as a 2 s Y4M (Chromium's fake-camera format).
+ */
+function makeMedia(dir) {
+  if (!fs.existsSync(testFace)) throw new Error(`no test face at ${testFace} (set LIKENESS_TEST_FACE)`);
+  const run = (args) => {
+    const r = spawnSync("ffmpeg", ["-y", "-loglevel", "error", ...args], { stdio: "inherit" });
+    if (r.status !== 0) throw new Error(`ffmpeg ${args.join(" ")} failed`);
+  };
+  const pad = "pad=640:480:208:128:color=0x6b6f73";
+  const media = {
+    imageA: path.join(dir, "face_a.png"),
+    imageB: path.join(dir, "face_b.png"),
+    video: path.join(dir, "face.webm"),
+    camera: path.join(dir, "camera.y4m"),
+  };
+  run(["-i", testFace, "-vf", pad, media.imageA]);
+  run(["-i", testFace, "-vf", `hflip,${pad}`, media.imageB]);
+  run(["-loop", "1", "-i", media.imageA, "-t", "1", "-r", "30", "-c:v", "libvpx", "-b:v", "1M",
+    "-pix_fmt", "yuv420p", media.video]);
+  run(["-loop", "1", "-i", media.imageA, "-t", "2", "-r", "30", "-pix_fmt", "yuv420p", media.camera]);
+  return media;
+}
+
+/** Drops files on the studio's canvas as a browser would (a DataTransfer with File objects). */
+async function dropFiles(page, files) {
+  const payload = files.map((f) => ({ name: path.basename(f.path), type: f.type,
+    b64: fs.readFileSync(f.path).toString("base64") }));
+  const dataTransfer = await page.evaluateHandle((files) => {
+    const dt = new DataTransfer();
+    for (const f of files) {
+      const bytes = Uint8Array.from(atob(f.b64), (c) => c.charCodeAt(0));
+      dt.items.add(new File([bytes], f.name, { type: f.type }));
+    }
+    return dt;
+  }, payload);
+  await page.dispatchEvent("#likeness", "dragover", { dataTransfer });
+  await page.dispatchEvent("#likeness", "drop", { dataTransfer });
+}
+
+// Where the studio's controls are at 1280x720 (egui lays them out the same every run).
+const FILE_MENU = [25, 12];
+const MENU_RECORD_WEBCAM = [79, 62];
+const MENU_SAVE_SESSION = [52, 94];
+const STOP_RECORDING = [1061, 600];
+
+async function click(page, [x, y]) {
+  await page.mouse.click(x, y);
+  await page.waitForTimeout(700);
 }
 
 /** Decodes an 8-bit RGB(A), non-interlaced PNG (what Chromium's screenshots are). */
@@ -122,13 +185,16 @@ function skinStats(png, rect) {
   return { skinFraction: skin / total, lumaStd: Math.sqrt(Math.max(0, lumaSq / total - mean * mean)) };
 }
 
-async function launch() {
+async function launch(camera) {
   return chromium.launch({
     executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
     headless: true,
     args: ["--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
       "--disable-background-networking", "--disable-component-update", "--disable-sync",
-      "--no-first-run", "--disable-dev-shm-usage"],
+      "--no-first-run", "--disable-dev-shm-usage",
+      // getUserMedia gets a camera that plays `camera`, without a permission prompt.
+      "--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream",
+      `--use-file-for-fake-video-capture=${camera}`],
   });
 }
 
@@ -146,7 +212,7 @@ async function waitFor(page, predicate, timeoutMs, what) {
   }
 }
 
-async function demoRun(browser) {
+async function demoRun(browser, media) {
   const server = await serve(dist);
   const page = await browser.newPage({ viewport: { width: 1280, height: 720 } });
   const console_ = [];
@@ -174,6 +240,7 @@ async function demoRun(browser) {
     check(ready.trackedFrames === 96 && ready.trackingFps > 0,
       `the page tracked ${ready.trackedFrames} frames at ${Number(ready.trackingFps).toFixed(1)} fps`);
     check(!ready.lastError, `no error toast (${ready.lastError || "none"})`);
+    await visitorRun(page, media);
     const wasm = fs.readFileSync(path.join(dist, "likeness_web_bg.wasm"));
     const gzipped = zlib.gzipSync(wasm, { level: 9 }).length;
     return {
@@ -197,6 +264,50 @@ async function demoRun(browser) {
     await page.close();
     server.stop();
   }
+}
+
+/** What a visitor does after the demo: save, drop a puppet, images and a video, record. */
+async function visitorRun(page, media) {
+  const sessionIs = (source, frames) => (s) => s.sessionSource === source && !s.job
+    && (frames === undefined || s.sessionFrames === frames);
+
+  // File > Save session: a download of the demo session.
+  const download = page.waitForEvent("download", { timeout: 60_000 });
+  await click(page, FILE_MENU);
+  await click(page, MENU_SAVE_SESSION);
+  const saved = await download;
+  const savedPath = path.join(out, "saved.likeness");
+  await saved.saveAs(savedPath);
+  const savedBytes = fs.statSync(savedPath).size;
+  check(saved.suggestedFilename() === "person.likeness" && savedBytes > 100_000,
+    `File > Save session downloads ${saved.suggestedFilename()} (${(savedBytes / 1e6).toFixed(1)} MB)`);
+
+  // A puppet dropped on the page replaces the demo puppet.
+  await dropFiles(page, [{ path: path.join(repo, "assets", "puppets", "bolt.glb"), type: "model/gltf-binary" }]);
+  const puppet = await waitFor(page, (s) => /bolt\.glb$/.test(s.puppet || ""), 60_000, "the dropped puppet");
+  check(true, `a dropped puppet loads (${puppet.puppet})`);
+
+  // Two images dropped together: one clip in name order, tracked and personalized.
+  await dropFiles(page, [{ path: media.imageB, type: "image/png" }, { path: media.imageA, type: "image/png" }]);
+  const images = await waitFor(page, sessionIs("2 dropped images", 2), 300_000, "the dropped images");
+  check(images.sessionFrames === 2, `two dropped images become a 2-frame session`);
+
+  // A video dropped: decoded by the page's <video> element at 30 fps.
+  await dropFiles(page, [{ path: media.video, type: "video/webm" }]);
+  const video = await waitFor(page, sessionIs("face.webm"), 300_000, "the dropped video");
+  check(video.sessionFrames >= 28 && video.sessionFrames <= 31,
+    `a dropped 1 s WebM becomes a ${video.sessionFrames}-frame session`);
+
+  // File > Record from webcam: the fake camera plays the face until Stop recording.
+  await click(page, FILE_MENU);
+  await click(page, MENU_RECORD_WEBCAM);
+  await waitFor(page, (s) => /^webcam: tracking (\d+)/.test(s.job || "")
+    && Number(/tracking (\d+)/.exec(s.job)[1]) >= 12, 120_000, "12 webcam frames");
+  await page.screenshot({ path: path.join(out, "webcam_recording.png") });
+  await click(page, STOP_RECORDING);
+  const webcam = await waitFor(page, sessionIs("webcam"), 300_000, "the webcam session");
+  check(webcam.sessionFrames >= 12, `the webcam recording becomes a ${webcam.sessionFrames}-frame session`);
+  await page.screenshot({ path: path.join(out, "webcam_session.png") });
 }
 
 /** The served folder without the template: the page must say what is missing. */
@@ -226,10 +337,11 @@ async function missingTemplateRun(browser) {
   }
 }
 
-const browser = await launch();
+const media = makeMedia(out);
+const browser = await launch(media.camera);
 let budgets;
 try {
-  budgets = await demoRun(browser);
+  budgets = await demoRun(browser, media);
   await missingTemplateRun(browser);
 } finally {
   await browser.close();
