@@ -31,7 +31,10 @@ if [ "$build" -eq 1 ]; then
   cargo build --quiet -p likeness-web --target wasm32-unknown-unknown --release
   rm -rf "$dist"
   mkdir -p "$dist"
-  wasm-bindgen --target web --no-typescript --out-dir "$dist" \
+  # Without the function-name section (3.7 MB, 0.9 MB gzipped): panics still print their
+  # message and source line; only stack traces lose Rust names.
+  wasm-bindgen --target web --no-typescript --remove-name-section --remove-producers-section \
+    --out-dir "$dist" \
     "$root/target/wasm32-unknown-unknown/release/likeness_web.wasm"
   cp web/index.html "$dist/"
   # Served by link: the project's own files from assets/, third-party data from where the

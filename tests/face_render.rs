@@ -60,9 +60,18 @@ fn render(view: StudioView, weights: &str, orbit: Orbit) -> image::RgbaImage {
 }
 
 fn changed_pixels(a: &image::RgbaImage, b: &image::RgbaImage) -> usize {
+    pixels_off_by_more_than(10, a, b)
+}
+
+/// Pixels where some channel differs by more than `tolerance`.
+fn pixels_off_by_more_than(tolerance: u8, a: &image::RgbaImage, b: &image::RgbaImage) -> usize {
     a.pixels()
         .zip(b.pixels())
-        .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 10))
+        .filter(|(p, q)| {
+            p.0.iter()
+                .zip(q.0.iter())
+                .any(|(x, y)| x.abs_diff(*y) > tolerance)
+        })
         .count()
 }
 
@@ -312,11 +321,7 @@ fn culling_back_faces_leaves_the_template_pictures_unchanged() {
             for view in [StudioView::Shaded, StudioView::Normals] {
                 let a = render_view(scene, full, view, &w, &orbit, SIZE).expect("render");
                 let b = render_view(scene, &mut culled, view, &w, &orbit, SIZE).expect("render");
-                let off = a
-                    .pixels()
-                    .zip(b.pixels())
-                    .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
-                    .count();
+                let off = pixels_off_by_more_than(3, &a, &b);
                 assert!(
                     off as f64 <= 0.005 * (SIZE.0 * SIZE.1) as f64,
                     "{weights:?} yaw {yaw} pitch {pitch} {view:?}: {off} pixels differ with culling"
@@ -349,11 +354,7 @@ fn the_opengl_backend_draws_what_the_default_backend_draws() {
             for view in [StudioView::Shaded, StudioView::Albedo, StudioView::Normals] {
                 let a = render_view(scene, default, view, &w, &orbit, SIZE).expect("render");
                 let b = render_view(scene, &mut gl, view, &w, &orbit, SIZE).expect("render");
-                let off = a
-                    .pixels()
-                    .zip(b.pixels())
-                    .filter(|(p, q)| p.0.iter().zip(q.0.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
-                    .count();
+                let off = pixels_off_by_more_than(3, &a, &b);
                 assert!(
                     off as f64 <= 0.005 * (SIZE.0 * SIZE.1) as f64,
                     "{weights:?} yaw {yaw} {view:?}: {off} pixels differ on OpenGL"

@@ -99,15 +99,7 @@ impl OffscreenRenderer {
                 info.name
             )));
         }
-        let face = FaceRenderer::with_options(&device, &queue, FORMAT, options, mesh, albedo)?;
-        Ok(Self {
-            device,
-            queue,
-            face,
-            adapter,
-            target: None,
-            pending: None,
-        })
+        Self::on_device(adapter, device, queue, options, mesh, albedo)
     }
 
     /// An offscreen renderer on a device that already exists (the browser studio's, which

@@ -43,6 +43,22 @@ fn document() -> Option<web_sys::Document> {
     web_sys::window().and_then(|w| w.document())
 }
 
+/// A new element of the page's document, as its `web_sys` type.
+fn create<T: JsCast>(tag: &str) -> Result<T, String> {
+    document()
+        .ok_or("no document")?
+        .create_element(tag)
+        .map_err(|e| js_error(&e))?
+        .dyn_into()
+        .map_err(|_| format!("<{tag}> is not the expected element"))
+}
+
+thread_local! {
+    /// The canvas frames are drawn on to read their pixels (one, reused: a camera at 30 fps
+    /// would otherwise make 30 canvases a second).
+    static GRAB_CANVAS: RefCell<Option<web_sys::CanvasRenderingContext2d>> = const { RefCell::new(None) };
+}
+
 /// Reads a browser `File` (or `Blob`) into bytes.
 async fn blob_bytes(blob: &web_sys::Blob) -> Result<Vec<u8>, String> {
     let buffer = JsFuture::from(blob.array_buffer())
@@ -53,20 +69,25 @@ async fn blob_bytes(blob: &web_sys::Blob) -> Result<Vec<u8>, String> {
 
 /// Draws `source` (a video element) at `width` x `height` and reads the pixels back.
 fn grab(source: &web_sys::HtmlVideoElement, width: u32, height: u32) -> Result<RgbImage, String> {
-    let canvas: web_sys::HtmlCanvasElement = document()
-        .ok_or("no document")?
-        .create_element("canvas")
-        .map_err(|e| js_error(&e))?
-        .dyn_into()
-        .map_err(|_| "not a canvas")?;
-    canvas.set_width(width);
-    canvas.set_height(height);
-    let context: web_sys::CanvasRenderingContext2d = canvas
-        .get_context("2d")
-        .map_err(|e| js_error(&e))?
-        .ok_or("no 2D context")?
-        .dyn_into()
-        .map_err(|_| "not a 2D context")?;
+    let context = GRAB_CANVAS.with(|slot| -> Result<_, String> {
+        if let Some(context) = slot.borrow().as_ref() {
+            return Ok(context.clone());
+        }
+        let canvas: web_sys::HtmlCanvasElement = create("canvas")?;
+        let context: web_sys::CanvasRenderingContext2d = canvas
+            .get_context("2d")
+            .map_err(|e| js_error(&e))?
+            .ok_or("no 2D context")?
+            .dyn_into()
+            .map_err(|_| "not a 2D context")?;
+        *slot.borrow_mut() = Some(context.clone());
+        Ok(context)
+    })?;
+    let canvas = context.canvas().ok_or("the 2D context has no canvas")?;
+    if canvas.width() != width || canvas.height() != height {
+        canvas.set_width(width);
+        canvas.set_height(height);
+    }
     context
         .draw_image_with_html_video_element_and_dw_and_dh(
             source,
@@ -115,12 +136,7 @@ async fn decode_video(
     let parts = js_sys::Array::of1(&array);
     let blob = web_sys::Blob::new_with_u8_array_sequence(&parts).map_err(|e| js_error(&e))?;
     let url = web_sys::Url::create_object_url_with_blob(&blob).map_err(|e| js_error(&e))?;
-    let video: web_sys::HtmlVideoElement = document()
-        .ok_or("no document")?
-        .create_element("video")
-        .map_err(|e| js_error(&e))?
-        .dyn_into()
-        .map_err(|_| "not a video element")?;
+    let video: web_sys::HtmlVideoElement = create("video")?;
     video.set_muted(true);
     video.set_preload("auto");
     video.set_src(&url);
@@ -177,12 +193,7 @@ async fn start_camera(camera: Rc<RefCell<Camera>>) -> Result<(), String> {
         .map_err(|e| format!("the camera could not start: {}", js_error(&e)))?
         .dyn_into()
         .map_err(|_| "not a media stream")?;
-    let video: web_sys::HtmlVideoElement = document()
-        .ok_or("no document")?
-        .create_element("video")
-        .map_err(|e| js_error(&e))?
-        .dyn_into()
-        .map_err(|_| "not a video element")?;
+    let video: web_sys::HtmlVideoElement = create("video")?;
     video.set_muted(true);
     video.set_src_object(Some(&stream));
     let _ = JsFuture::from(video.play().map_err(|e| js_error(&e))?)
@@ -197,11 +208,12 @@ async fn start_camera(camera: Rc<RefCell<Camera>>) -> Result<(), String> {
 
 impl WebHost for PageHost {
     fn pick_files(&self, accept: &str) {
-        let Some(input) = document()
-            .and_then(|d| d.create_element("input").ok())
-            .and_then(|e| e.dyn_into::<web_sys::HtmlInputElement>().ok())
-        else {
-            return;
+        let input: web_sys::HtmlInputElement = match create("input") {
+            Ok(input) => input,
+            Err(e) => {
+                tracing::error!("cannot open the file picker: {e}");
+                return;
+            }
         };
         input.set_type("file");
         input.set_multiple(true);
@@ -262,12 +274,7 @@ impl WebHost for PageHost {
         let blob = web_sys::Blob::new_with_u8_array_sequence_and_options(&parts, &options)
             .map_err(|e| js_error(&e))?;
         let url = web_sys::Url::create_object_url_with_blob(&blob).map_err(|e| js_error(&e))?;
-        let anchor: web_sys::HtmlAnchorElement = document()
-            .ok_or("no document")?
-            .create_element("a")
-            .map_err(|e| js_error(&e))?
-            .dyn_into()
-            .map_err(|_| "not an anchor")?;
+        let anchor: web_sys::HtmlAnchorElement = create("a")?;
         anchor.set_href(&url);
         anchor.set_download(name);
         anchor.click();

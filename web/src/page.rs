@@ -32,6 +32,15 @@ impl Report {
         Self { object }
     }
 
+    /// The `window.likeness` [`Report::new`] made (a new one if there is none).
+    fn new_shared() -> Self {
+        let object = web_sys::window()
+            .and_then(|w| js_sys::Reflect::get(&w, &"likeness".into()).ok())
+            .and_then(|v| v.dyn_into::<js_sys::Object>().ok())
+            .unwrap_or_default();
+        Self { object }
+    }
+
     fn set(&self, key: &str, value: impl Into<JsValue>) {
         let _ = js_sys::Reflect::set(&self.object, &key.into(), &value.into());
     }
@@ -234,16 +243,6 @@ struct WebStudio {
     backend: String,
     frames: u64,
     demo_reported: bool,
-}
-
-impl Report {
-    fn new_shared() -> Self {
-        let object = web_sys::window()
-            .and_then(|w| js_sys::Reflect::get(&w, &"likeness".into()).ok())
-            .and_then(|v| v.dyn_into::<js_sys::Object>().ok())
-            .unwrap_or_default();
-        Self { object }
-    }
 }
 
 impl eframe::App for WebStudio {
