@@ -908,21 +908,25 @@ impl StudioApp {
         ) {
             self.state.notices.error(error);
         }
-        if let Some(request) = self.puppet_panel.requested_export.take()
-            && let Some(host) = self.web_host.clone()
-        {
-            self.puppet_panel.status = Some(self.web_export(request.kind, &session, &*host));
-        } else if let Some(request) = self.puppet_panel.requested_export.take() {
-            let job = self.puppet_panel.export_job(
-                request.kind,
-                self.scene.clone(),
-                session.clone(),
-                request.dir,
-            );
-            let label = request.label;
-            self.start_write(WriteKind::Export, label, move || {
-                job().map_err(|e| format!("{label}: {e:#}"))
-            });
+        if let Some(request) = self.puppet_panel.requested_export.take() {
+            match self.web_host.clone() {
+                Some(host) => {
+                    self.puppet_panel.status =
+                        Some(self.web_export(request.kind, &session, &*host));
+                }
+                None => {
+                    let job = self.puppet_panel.export_job(
+                        request.kind,
+                        self.scene.clone(),
+                        session.clone(),
+                        request.dir,
+                    );
+                    let label = request.label;
+                    self.start_write(WriteKind::Export, label, move || {
+                        job().map_err(|e| format!("{label}: {e:#}"))
+                    });
+                }
+            }
         }
         self.state.frame_time_ms = started.elapsed().as_secs_f32() * 1000.0;
     }
