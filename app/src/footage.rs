@@ -2,6 +2,9 @@
 //! file or a webcam is tracked (landmarks, TrackNet, refinement), personalized (ModelNet on
 //! the most varied frames) and tracked again with the person's own blendshapes, the same
 //! pipeline as `likeness personalize`, while the studio shows the progress and can cancel.
+//! Natively the job runs on its own thread; in the browser, which has one, it is
+//! [`crate::stepped::SteppedTracking`] advanced a slice per UI frame, behind the same
+//! `FootageJob` interface.
 
 #[cfg(not(target_arch = "wasm32"))]
 pub use native::{FootageJob, process_footage};
