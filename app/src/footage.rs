@@ -358,6 +358,10 @@ mod stepped {
     /// How long one UI frame may spend on the job (at least one frame is tracked).
     const STEP_BUDGET: Duration = Duration::from_millis(30);
 
+    /// Footage kept in a page's memory (which is 4 GB at most, for everything): 600 frames
+    /// at 640x480, 360 at 1280x720.
+    const MAX_FOOTAGE_BYTES: usize = 1 << 30;
+
     pub struct FootageJob {
         pub input: String,
         pub progress: Progress,
@@ -404,7 +408,8 @@ mod stepped {
                 feed,
                 request.max_frames,
                 request.personalize_frames,
-            );
+            )
+            .with_memory_limit(MAX_FOOTAGE_BYTES);
             Ok(Self {
                 input,
                 progress: tracking.progress.clone(),

@@ -123,6 +123,9 @@ pub struct SteppedTracking {
     other_size: usize,
     stop_requested: bool,
     max_frames: usize,
+    /// Frames kept are at most this many bytes (a wasm page has 4 GB at most).
+    max_frame_bytes: usize,
+    frame_bytes: usize,
     personalize_frames: usize,
     total: Option<usize>,
     pub progress: Progress,
@@ -159,6 +162,8 @@ impl SteppedTracking {
             other_size: 0,
             stop_requested: false,
             max_frames: max_frames.max(1),
+            max_frame_bytes: usize::MAX,
+            frame_bytes: 0,
             personalize_frames,
             total,
             progress: Progress {
@@ -170,6 +175,13 @@ impl SteppedTracking {
             rate: TrackingRate::default(),
             first_frame_started: None,
         }
+    }
+
+    /// Stops taking frames once those kept reach `bytes` (a recording ends there, a clip is
+    /// cut), so long or large footage cannot exhaust a browser page's memory.
+    pub fn with_memory_limit(mut self, bytes: usize) -> Self {
+        self.max_frame_bytes = bytes;
+        self
     }
 
     /// Ends the tracking stage: a live source stops recording and what was recorded is
@@ -275,7 +287,15 @@ impl SteppedTracking {
 
     /// Tracks the next frame of the feed, or moves on to personalizing when there is none.
     fn track_next(&mut self) -> Result<(), String> {
-        let image = if self.stop_requested || self.frames.len() >= self.max_frames {
+        let full = self.frames.len() >= self.max_frames || self.frame_bytes >= self.max_frame_bytes;
+        if full && !self.stop_requested {
+            tracing::warn!(
+                "footage cut at {} frames ({} MB in memory)",
+                self.frames.len(),
+                self.frame_bytes / 1_000_000
+            );
+        }
+        let image = if self.stop_requested || full {
             None
         } else {
             match &mut self.feed {
@@ -346,6 +366,7 @@ impl SteppedTracking {
         if *self.size.get_or_insert(dims) != dims {
             self.other_size += 1;
         } else {
+            self.frame_bytes += frame.image.as_raw().len();
             self.frames.push(frame.image);
             self.outputs.push(out);
         }

@@ -209,3 +209,43 @@ fn feeds_without_frames_or_faces_end_with_a_clear_error() {
     };
     assert_eq!(run(failing), "the camera could not start: denied");
 }
+
+#[test]
+fn a_memory_limit_ends_a_recording_with_the_frames_that_fit() {
+    let scene = scene_with_networks();
+    let config = DemoConfig {
+        frames: 6,
+        ..config()
+    };
+    let mut frames: VecDeque<_> = clip(&scene, &config).into();
+    let frame_bytes = 640 * 480 * 3;
+    let next = move || match frames.pop_front() {
+        Some(frame) => LiveFrame::Frame(frame),
+        None => LiveFrame::Waiting,
+    };
+    // Room for three frames and a half: the fourth frame crosses the limit and is the last.
+    let mut job = stepped_tracking(
+        &scene,
+        FrameFeed::Live {
+            next: Box::new(next),
+            fps: 30.0,
+        },
+    )
+    .with_memory_limit(3 * frame_bytes + frame_bytes / 2);
+    let started = web_time::Instant::now();
+    let tracked = loop {
+        // The camera never ends by itself: only the limit can end this recording.
+        assert!(
+            started.elapsed().as_secs() < 120,
+            "the limit did not end the recording"
+        );
+        if let Some(result) = job.step(Duration::from_millis(50)) {
+            break result.unwrap_or_else(|e| panic!("{e}"));
+        }
+    };
+    assert_eq!(
+        tracked.frames.len(),
+        4,
+        "the recording ends by itself at the limit"
+    );
+}

@@ -146,6 +146,7 @@ async fn decode_video(
         if width == 0 || height == 0 {
             return Err("the browser cannot decode this video".to_owned());
         }
+        let (width, height) = crate::fitted_frame_size(width, height);
         let duration = video.duration();
         let total = if duration.is_finite() && duration > 0.0 {
             ((duration * VIDEO_FPS).floor() as usize).clamp(1, max_frames)
@@ -335,7 +336,8 @@ impl WebHost for PageHost {
             return CameraFrame::Waiting;
         }
         camera.last_time = time;
-        match grab(&video, video.video_width(), video.video_height()) {
+        let (width, height) = crate::fitted_frame_size(video.video_width(), video.video_height());
+        match grab(&video, width, height) {
             Ok(image) => CameraFrame::Frame(image),
             Err(e) => CameraFrame::Failed(e),
         }

@@ -128,6 +128,21 @@ pub fn missing_message(missing: &[Asset]) -> String {
     text
 }
 
+/// Video and camera frames are scaled down to fit this: the tracker works on 224-pixel
+/// crops, and larger frames only cost the page memory, which holds every frame of a session.
+pub const MAX_FRAME_SIZE: (u32, u32) = (1280, 720);
+
+/// `width` x `height` scaled down (never up) to fit [`MAX_FRAME_SIZE`], aspect kept.
+pub fn fitted_frame_size(width: u32, height: u32) -> (u32, u32) {
+    let scale = (f64::from(MAX_FRAME_SIZE.0) / f64::from(width.max(1)))
+        .min(f64::from(MAX_FRAME_SIZE.1) / f64::from(height.max(1)))
+        .min(1.0);
+    (
+        ((f64::from(width) * scale).round() as u32).max(1),
+        ((f64::from(height) * scale).round() as u32).max(1),
+    )
+}
+
 /// Fetched files by asset.
 #[derive(Default)]
 pub struct Fetched {
@@ -158,6 +173,16 @@ mod tests {
             );
             assert!(REQUIRED_ASSETS[i + 1..].iter().all(|b| b.url != a.url));
         }
+    }
+
+    #[test]
+    fn frames_shrink_to_fit_720p_with_their_aspect_and_never_grow() {
+        assert_eq!(fitted_frame_size(640, 480), (640, 480));
+        assert_eq!(fitted_frame_size(1920, 1080), (1280, 720));
+        assert_eq!(fitted_frame_size(3840, 2160), (1280, 720));
+        // Portrait phone video: the height limits.
+        assert_eq!(fitted_frame_size(1080, 1920), (405, 720));
+        assert_eq!(fitted_frame_size(0, 0), (1, 1));
     }
 
     #[test]
