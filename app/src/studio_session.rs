@@ -23,6 +23,9 @@ use tracking::session::{FrameObservations, Session, SessionInfo};
 
 use crate::demo::DemoSession;
 
+/// [`StudioSession::source`] of the built-in demo.
+pub const DEMO_SOURCE: &str = "built-in demo";
+
 /// One person's session in the studio.
 pub struct StudioSession {
     /// Where the footage came from (file, folder, "built-in demo").
@@ -49,7 +52,7 @@ impl StudioSession {
     pub fn from_demo(model: &FaceModel, demo: DemoSession) -> Self {
         let mut session = Self::from_tracking(
             model,
-            "built-in demo".into(),
+            DEMO_SOURCE.into(),
             demo.config.fps,
             demo.frames,
             demo.outputs,

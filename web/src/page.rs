@@ -190,6 +190,7 @@ async fn run(report: &Report) -> Result<(), String> {
                     backend,
                     frames: 0,
                     demo_reported: false,
+                    shown_session: None,
                 }))
             }),
         )
@@ -243,6 +244,8 @@ struct WebStudio {
     backend: String,
     frames: u64,
     demo_reported: bool,
+    /// The session the status line last named (source, frames).
+    shown_session: Option<(String, usize)>,
 }
 
 impl eframe::App for WebStudio {
@@ -297,8 +300,29 @@ impl eframe::App for WebStudio {
             self.report
                 .status(&format!("demo: {} {}{total}", p.stage, p.done), false);
         }
+        if let Some(job) = self.studio.job() {
+            self.report.status(
+                &format!(
+                    "{}: {} {}",
+                    job.input, job.progress.stage, job.progress.done
+                ),
+                false,
+            );
+        } else if let Some(session) = self.studio.session()
+            && self.demo_reported
+        {
+            let shown = (session.source.clone(), session.frame_count());
+            if self.shown_session.as_ref() != Some(&shown) {
+                self.report
+                    .status(&format!("session: {}, {} frames", shown.0, shown.1), false);
+                self.shown_session = Some(shown);
+            }
+        }
         if !self.demo_reported
-            && let Some(session) = self.studio.session()
+            && let Some(session) = self
+                .studio
+                .session()
+                .filter(|s| s.source == likeness::studio_session::DEMO_SOURCE)
         {
             self.demo_reported = true;
             self.report.set("demoReadyMs", now_ms());

@@ -307,6 +307,9 @@ async function visitorRun(page, media) {
   await click(page, STOP_RECORDING);
   const webcam = await waitFor(page, sessionIs("webcam"), 300_000, "the webcam session");
   check(webcam.sessionFrames >= 12, `the webcam recording becomes a ${webcam.sessionFrames}-frame session`);
+  await page.waitForTimeout(500);
+  const status = await page.textContent("#status");
+  check(status === `session: webcam, ${webcam.sessionFrames} frames`, `the status line names it ("${status}")`);
   await page.screenshot({ path: path.join(out, "webcam_session.png") });
 }
 
