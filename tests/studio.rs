@@ -7,6 +7,7 @@ use egui::accesskit::Role;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use face::names::ict_index;
+use likeness::puppet_panel::ExportKind;
 use likeness::scene::{Scene, StudioView};
 use likeness::studio::StudioApp;
 
@@ -698,6 +699,33 @@ fn the_puppet_panel_follows_a_mapping_gain_exports_and_drives_person_b() {
         face::names::NUM_ARKIT,
         "one morph target per ARKit channel"
     );
+    // The browser's downloads are these files, byte for byte (the puppet as dropped there).
+    let pip = std::fs::read(likeness::puppet_panel::DEMO_PUPPET).expect("pip.glb");
+    let mut dropped =
+        likeness::puppet_panel::LoadedPuppet::from_bytes("pip.glb", &pip).expect("pip");
+    dropped.mapping = harness
+        .state()
+        .puppet_panel
+        .puppet
+        .as_ref()
+        .expect("puppet")
+        .mapping
+        .clone();
+    dropped.mapping_changed();
+    for kind in [
+        ExportKind::Animation,
+        ExportKind::LiveLinkCsv,
+        ExportKind::PersonalizedRig,
+    ] {
+        let name = kind.file_name(Some(std::path::Path::new("pip.glb")));
+        let (bytes, _) =
+            likeness::puppet_panel::export_bytes(kind, Some(&dropped), &scene(), &session, &name)
+                .unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        assert!(
+            bytes == std::fs::read(dir.join(&name)).expect("written"),
+            "{name}"
+        );
+    }
     // A folder that cannot be made (a file is in the way): the error reaches the UI.
     harness.state_mut().puppet_panel.export_dir =
         dir.join("live_link_face.csv").display().to_string();

@@ -38,6 +38,9 @@ pub struct LoadedPuppet {
     pub view: PuppetView,
     pub mapping: MappingData,
     pub retargeter: Retargeter,
+    /// The file's bytes when it came without a path (the browser), for the animation
+    /// export, which writes the puppet again with its animation.
+    pub bytes: Option<Arc<[u8]>>,
 }
 
 impl LoadedPuppet {
@@ -53,7 +56,9 @@ impl LoadedPuppet {
     pub fn from_bytes(name: &str, bytes: &[u8]) -> Result<Self> {
         let path = Path::new(name);
         let puppet = Puppet::from_slice(bytes, path, None)?;
-        Self::with_mapping(path, puppet, MappingData::default())
+        let mut loaded = Self::with_mapping(path, puppet, MappingData::default())?;
+        loaded.bytes = Some(Arc::from(bytes));
+        Ok(loaded)
     }
 
     fn with_mapping(path: &Path, puppet: Puppet, mapping: MappingData) -> Result<Self> {
@@ -74,6 +79,7 @@ impl LoadedPuppet {
             view,
             mapping,
             retargeter,
+            bytes: None,
         })
     }
 
@@ -734,11 +740,12 @@ impl PuppetPanel {
 
     fn export_ui(&mut self, ui: &mut egui::Ui) {
         ui.strong("Export");
+        // In a browser exports are downloads: there is no folder to choose.
+        #[cfg(not(target_arch = "wasm32"))]
         ui.horizontal(|ui| {
             let label = ui.label("Folder");
             ui.add(egui::TextEdit::singleline(&mut self.export_dir).desired_width(110.0))
                 .labelled_by(label.id);
-            #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Choose...").clicked()
                 && let Some(dir) = rfd::FileDialog::new().pick_folder()
             {
@@ -801,6 +808,59 @@ pub fn export(
         }
     }
     Ok(out)
+}
+
+/// An export's bytes and MIME type, as the browser offers it for download: the same files
+/// [`export`] writes natively.
+pub fn export_bytes(
+    kind: ExportKind,
+    puppet: Option<&LoadedPuppet>,
+    scene: &Scene,
+    session: &StudioSession,
+    name: &str,
+) -> anyhow::Result<(Vec<u8>, &'static str)> {
+    let tracks = session.tracks();
+    let out = std::path::Path::new(name);
+    Ok(match kind {
+        ExportKind::LiveLinkCsv => {
+            let text = match puppet {
+                Some(p) => retarget::export::live_link_csv(&p.retargeter, &tracks),
+                None => retarget::export::live_link_csv_raw(&tracks),
+            };
+            (text.into_bytes(), "text/csv")
+        }
+        ExportKind::Animation => {
+            let Some(p) = puppet else {
+                anyhow::bail!("load a puppet to export its animation");
+            };
+            let Some(source) = &p.bytes else {
+                anyhow::bail!("the puppet was loaded from a file: the native studio exports it");
+            };
+            let clip = retarget::export::retarget_clip(&p.retargeter, &tracks);
+            let bytes = retarget::export::animation_glb_bytes(
+                source,
+                None,
+                &p.puppet,
+                &p.retargeter,
+                &clip,
+                out,
+            )?;
+            (bytes, "model/gltf-binary")
+        }
+        ExportKind::PersonalizedRig => {
+            let rig = retarget::rig::PersonalizedRig::new(
+                &scene.model,
+                &session.blendshapes,
+                &session.corrections,
+                &scene.albedo,
+                scene.albedo.face(),
+            )?;
+            (
+                retarget::rig::rig_glb_bytes(&rig, out)?,
+                "model/gltf-binary",
+            )
+        }
+    })
 }
 
 /// A 0..1 value as a small horizontal bar.

@@ -938,33 +938,18 @@ impl StudioApp {
         session: &StudioSession,
         host: &dyn crate::web_host::WebHost,
     ) -> String {
-        use crate::puppet_panel::ExportKind;
-        let name = kind.file_name(None);
-        match kind {
-            ExportKind::LiveLinkCsv => {
-                let tracks = session.tracks();
-                let text = match &self.puppet_panel.puppet {
-                    Some(p) => retarget::export::live_link_csv(&p.retargeter, &tracks),
-                    None => retarget::export::live_link_csv_raw(&tracks),
-                };
-                match host.download(&name, "text/csv", text.as_bytes()) {
-                    Ok(()) => format!("downloaded {name}"),
-                    Err(e) => {
-                        self.state.notices.error(format!("{name}: {e}"));
-                        format!("{name} failed")
-                    }
-                }
-            }
-            // Both re-read files beside the puppet (its buffers and images) and write
-            // through the file system, which a page does not have.
-            ExportKind::Animation | ExportKind::PersonalizedRig => {
-                let message = format!(
-                    "{name}: this export is written by the native studio (`likeness studio`, \
-                     or `likeness retarget`); the browser exports the Live Link CSV and the \
-                     session"
-                );
-                self.state.notices.error(message.clone());
-                message
+        let puppet = self.puppet_panel.puppet.as_ref();
+        let name = kind.file_name(puppet.map(|p| p.path.as_path()));
+        let made = crate::puppet_panel::export_bytes(kind, puppet, &self.scene, session, &name)
+            .and_then(|(bytes, mime)| {
+                host.download(&name, mime, &bytes)
+                    .map_err(anyhow::Error::msg)
+            });
+        match made {
+            Ok(()) => format!("downloaded {name}"),
+            Err(e) => {
+                self.state.notices.error(format!("{name}: {e:#}"));
+                format!("{name} failed")
             }
         }
     }

@@ -60,12 +60,30 @@ pub fn write_animation_glb(
     }
     let source = &puppet.path;
     let bytes = std::fs::read(source).map_err(io_error(source))?;
-    let mut raw = split_gltf(&bytes, source)?.json;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| RetargetError::InvalidPuppet {
+    let data = animation_glb_bytes(&bytes, source.parent(), puppet, retargeter, clip, out)?;
+    write_atomically(out, &data)
+}
+
+/// [`write_animation_glb`]'s file as bytes, from the puppet file's `bytes` (what a browser
+/// has); `base` is where its external buffers and images are (`None`: embedded data only)
+/// and `out` names the result in messages.
+pub fn animation_glb_bytes(
+    bytes: &[u8],
+    base: Option<&Path>,
+    puppet: &Puppet,
+    retargeter: &Retargeter,
+    clip: &[ClipFrame],
+    out: &Path,
+) -> Result<Vec<u8>> {
+    if clip.is_empty() {
+        return Err(write_err(out, "the clip has no frames with a face"));
+    }
+    let source = &puppet.path;
+    let mut raw = split_gltf(bytes, source)?.json;
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| RetargetError::InvalidPuppet {
         path: source.clone(),
         reason: format!("invalid glTF: {e}"),
     })?;
-    let base = source.parent();
     let buffers = gltf::import_buffers(&gltf.document, base, gltf.blob).map_err(|e| {
         RetargetError::InvalidPuppet {
             path: source.clone(),
@@ -178,8 +196,7 @@ pub fn write_animation_glb(
         "animations",
         json!({"name": ANIMATION_NAME, "samplers": samplers, "channels": channels}),
     );
-    let data = doc.finish().map_err(|e| write_err(out, e))?;
-    write_atomically(out, &data)
+    doc.finish().map_err(|e| write_err(out, e))
 }
 
 /// `%20` -> space in relative URIs (glTF URIs are percent-encoded).

@@ -110,6 +110,12 @@ fn png(map: &UvMap, encode: impl Fn(f32) -> f32) -> std::result::Result<Vec<u8>,
 
 /// Writes the rig; the file is replaced atomically.
 pub fn write_rig_glb(rig: &PersonalizedRig, out: &Path) -> Result<()> {
+    write_atomically(out, &rig_glb_bytes(rig, out)?)
+}
+
+/// [`write_rig_glb`]'s file as bytes (a download in the browser); `out` names it in
+/// messages.
+pub fn rig_glb_bytes(rig: &PersonalizedRig, out: &Path) -> Result<Vec<u8>> {
     let err = |reason: String| RetargetError::Write {
         path: out.to_owned(),
         reason,
@@ -244,8 +250,7 @@ pub fn write_rig_glb(rig: &PersonalizedRig, out: &Path) -> Result<()> {
         "encoding": format!("rgb = 0.5 + dR / (2 x {DYNAMIC_ALBEDO_RANGE}); A_i dR_i in the face tile's UV layout, added to the base colour with the shape's weight"),
         "size": rig.dynamic_albedo.first().map_or(0, |m| m.width),
     }}});
-    let bytes = doc.finish().map_err(err)?;
-    write_atomically(out, &bytes)
+    doc.finish().map_err(err)
 }
 
 /// Decodes one dynamic albedo texel back to dR (for readers and tests).

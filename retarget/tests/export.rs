@@ -6,8 +6,8 @@ mod common;
 use common::temp_dir;
 use face::names::{NUM_ARKIT, arkit_index};
 use retarget::export::{
-    ANIMATION_NAME, live_link_csv, live_link_header, live_link_timecode, parse_live_link_csv,
-    retarget_clip, write_animation_glb,
+    ANIMATION_NAME, animation_glb_bytes, live_link_csv, live_link_header, live_link_timecode,
+    parse_live_link_csv, retarget_clip, write_animation_glb,
 };
 use retarget::generator::{glb_bytes, styles};
 use retarget::{MappingData, Puppet, Retargeter, Tracks};
@@ -42,6 +42,17 @@ fn animation_glb_round_trips_weights_and_head_rotation() {
         let clip = retarget_clip(&r, &tracks());
         let out = dir.join(format!("{}-anim.glb", style.name));
         write_animation_glb(&puppet, &r, &clip, &out).unwrap();
+        // What the browser makes from the dropped file's bytes is the written file.
+        let from_bytes = animation_glb_bytes(
+            &std::fs::read(&path).unwrap(),
+            None,
+            &puppet,
+            &r,
+            &clip,
+            &out,
+        )
+        .unwrap();
+        assert!(from_bytes == std::fs::read(&out).unwrap(), "{}", style.name);
 
         // Independent reader: the gltf crate's own animation API.
         let (document, buffers, _) = gltf::import(&out).unwrap();

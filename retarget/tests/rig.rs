@@ -9,7 +9,7 @@ use face::albedo::MeanAlbedo;
 use face::names::{ARKIT_NAMES, NUM_ARKIT, arkit_sources};
 use face::uv::UvMap;
 use face::{FaceModel, PersonalCorrections, Template};
-use retarget::rig::{PersonalizedRig, decode_dynamic_albedo, write_rig_glb};
+use retarget::rig::{PersonalizedRig, decode_dynamic_albedo, rig_glb_bytes, write_rig_glb};
 use retarget::{MappingData, Puppet, Retargeter};
 
 /// Smooth, person-like corrections: a few millimetres of shape, a tint, folds.
@@ -43,6 +43,8 @@ fn rig_targets_are_the_personalized_blendshapes_and_the_file_is_well_formed() {
     let dir = temp_dir("rig");
     let out = dir.join("person.glb");
     write_rig_glb(&rig, &out).unwrap();
+    // The browser's download is the written file.
+    assert!(rig_glb_bytes(&rig, &out).unwrap() == std::fs::read(&out).unwrap());
 
     // Structure, as the glTF crate validates it, and every accessor's min/max recomputed.
     let (document, buffers, images) = gltf::import(&out).unwrap();

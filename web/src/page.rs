@@ -325,6 +325,8 @@ impl eframe::App for WebStudio {
                 .filter(|s| s.source == likeness::studio_session::DEMO_SOURCE)
         {
             self.demo_reported = true;
+            // The status line keeps the demo's numbers until the session changes.
+            self.shown_session = Some((session.source.clone(), session.frame_count()));
             self.report.set("demoReadyMs", now_ms());
             self.report
                 .set("sessionFrames", session.frame_count() as f64);

@@ -107,6 +107,12 @@ const FILE_MENU = [25, 12];
 const MENU_RECORD_WEBCAM = [79, 62];
 const MENU_SAVE_SESSION = [52, 94];
 const STOP_RECORDING = [1061, 600];
+const PUPPET_TAB = [533, 12];
+const EXPORTS = [
+  ["Export glTF animation", [1015, 449], "pip_animation.glb"],
+  ["Export Live Link CSV", [1010, 472], "live_link_face.csv"],
+  ["Export personalized rig", [1018, 495], "personalized_rig.glb"],
+];
 
 async function click(page, [x, y]) {
   await page.mouse.click(x, y);
@@ -281,6 +287,24 @@ async function visitorRun(page, media) {
   const savedBytes = fs.statSync(savedPath).size;
   check(saved.suggestedFilename() === "person.likeness" && savedBytes > 100_000,
     `File > Save session downloads ${saved.suggestedFilename()} (${(savedBytes / 1e6).toFixed(1)} MB)`);
+
+  // The puppet panel's exports: downloads of the files the desktop writes.
+  await click(page, PUPPET_TAB);
+  await page.waitForTimeout(1500);
+  for (const [label, at, expected] of EXPORTS) {
+    const exported = page.waitForEvent("download", { timeout: 120_000 });
+    await click(page, at);
+    const file = await exported;
+    const target = path.join(out, file.suggestedFilename());
+    await file.saveAs(target);
+    const bytes = fs.readFileSync(target);
+    const looksRight = expected.endsWith(".csv")
+      ? bytes.toString("utf8").startsWith("Timecode,BlendShapeCount,EyeBlinkLeft")
+        && bytes.toString("utf8").trim().split("\n").length === 97
+      : bytes.toString("ascii", 0, 4) === "glTF";
+    check(file.suggestedFilename() === expected && looksRight,
+      `${label} downloads ${file.suggestedFilename()} (${(bytes.length / 1e3).toFixed(0)} kB)`);
+  }
 
   // A puppet dropped on the page replaces the demo puppet.
   await dropFiles(page, [{ path: path.join(repo, "assets", "puppets", "bolt.glb"), type: "model/gltf-binary" }]);
