@@ -3,6 +3,11 @@
 # with sudo available). Idempotent: installs only what is missing.
 set -euo pipefail
 
+# --web: also what the browser build and its test need (wasm-bindgen, Chromium,
+# playwright-core); scripts/test.sh and scripts/web.sh ask for it, the studio does not.
+web=0
+[ "${1:-}" = "--web" ] && web=1
+
 need=()
 # Mesa's lavapipe: the Vulkan driver headless rendering and the screenshot tests run on;
 # Xvfb: the display the software-window test opens its window on.
@@ -19,7 +24,9 @@ python3 -m pip --version >/dev/null 2>&1 || need+=(python3-pip)
 # ffmpeg decodes video files and webcams for `likeness track` / `personalize`.
 command -v ffmpeg >/dev/null 2>&1 || need+=(ffmpeg)
 # The browser build's end-to-end test runs Debian's Chromium (headless, WebGL2 on SwiftShader).
-command -v chromium >/dev/null 2>&1 || need+=(chromium)
+if [ "$web" -eq 1 ]; then
+  command -v chromium >/dev/null 2>&1 || need+=(chromium)
+fi
 # Node runs the Khronos glTF validator in retarget's tests (npm package gltf-validator).
 command -v node >/dev/null 2>&1 || need+=(nodejs)
 command -v npm >/dev/null 2>&1 || need+=(npm)
@@ -72,6 +79,10 @@ with zipfile.ZipFile(wheel) as z:
     tmp.replace(out / name)
 shutil.rmtree(out / "wheel")
 PY
+fi
+
+if [ "$web" -eq 0 ]; then
+  exit 0
 fi
 
 # The browser build: wasm-bindgen's CLI at exactly the version of the wasm-bindgen crate in

@@ -2,7 +2,7 @@
 # Runs every test of the workspace, installing what the tests need first.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-scripts/setup.sh
+scripts/setup.sh --web
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/likeness-xdg}"
 # The training code's venv, the Rust-exported face fixture, and what the Rust tracking
 # tests compare against: the parity fixture and the held-out synthetic clips it renders.

@@ -26,7 +26,7 @@ done
 
 dist="$root/web/dist"
 if [ "$build" -eq 1 ]; then
-  scripts/setup.sh
+  scripts/setup.sh --web
   export PATH="$root/.cache/tools/bin:$PATH"
   cargo build --quiet -p likeness-web --target wasm32-unknown-unknown --release
   rm -rf "$dist"
