@@ -16,7 +16,7 @@ use face::{PersonalCorrections, PersonalizedBlendshapes};
 use renderer::{FaceRenderer, FrameParams};
 use retarget::export::{live_link_csv, retarget_clip, write_animation_glb};
 use retarget::mapping::{ChannelMapping, Source, sidecar_path, write_atomically};
-use retarget::rig::{PersonalizedRig, write_rig_glb};
+use retarget::rig::{PersonalizedRig, rig_glb_bytes};
 use retarget::{MappingData, Puppet, PuppetPose, Retargeter};
 
 use crate::gpu_view::{
@@ -790,24 +790,34 @@ pub fn export(
             write_animation_glb(puppet, retargeter, &clip, &out)?;
         }
         ExportKind::LiveLinkCsv => {
-            let text = match puppet.as_ref() {
-                Some((_, _, retargeter)) => live_link_csv(retargeter, &tracks),
-                None => retarget::export::live_link_csv_raw(&tracks),
-            };
+            let text = live_link_text(puppet.as_ref().map(|(_, _, r)| r), &tracks);
             write_atomically(&out, text.as_bytes())?;
         }
         ExportKind::PersonalizedRig => {
-            let rig = PersonalizedRig::new(
-                &scene.model,
-                &session.blendshapes,
-                &session.corrections,
-                &scene.albedo,
-                scene.albedo.face(),
-            )?;
-            write_rig_glb(&rig, &out)?;
+            write_atomically(&out, &rig_bytes(scene, session, &out)?)?;
         }
     }
     Ok(out)
+}
+
+/// The Live Link CSV: through the puppet's mapping calibration when one is loaded.
+fn live_link_text(retargeter: Option<&Retargeter>, tracks: &retarget::Tracks) -> String {
+    match retargeter {
+        Some(retargeter) => live_link_csv(retargeter, tracks),
+        None => retarget::export::live_link_csv_raw(tracks),
+    }
+}
+
+/// The personalized rig's GLB; `out` names it in messages.
+fn rig_bytes(scene: &Scene, session: &StudioSession, out: &Path) -> Result<Vec<u8>> {
+    let rig = PersonalizedRig::new(
+        &scene.model,
+        &session.blendshapes,
+        &session.corrections,
+        &scene.albedo,
+        scene.albedo.face(),
+    )?;
+    Ok(rig_glb_bytes(&rig, out)?)
 }
 
 /// An export's bytes and MIME type, as the browser offers it for download: the same files
@@ -822,13 +832,10 @@ pub fn export_bytes(
     let tracks = session.tracks();
     let out = std::path::Path::new(name);
     Ok(match kind {
-        ExportKind::LiveLinkCsv => {
-            let text = match puppet {
-                Some(p) => retarget::export::live_link_csv(&p.retargeter, &tracks),
-                None => retarget::export::live_link_csv_raw(&tracks),
-            };
-            (text.into_bytes(), "text/csv")
-        }
+        ExportKind::LiveLinkCsv => (
+            live_link_text(puppet.map(|p| &p.retargeter), &tracks).into_bytes(),
+            "text/csv",
+        ),
         ExportKind::Animation => {
             let Some(p) = puppet else {
                 anyhow::bail!("load a puppet to export its animation");
@@ -847,19 +854,7 @@ pub fn export_bytes(
             )?;
             (bytes, "model/gltf-binary")
         }
-        ExportKind::PersonalizedRig => {
-            let rig = retarget::rig::PersonalizedRig::new(
-                &scene.model,
-                &session.blendshapes,
-                &session.corrections,
-                &scene.albedo,
-                scene.albedo.face(),
-            )?;
-            (
-                retarget::rig::rig_glb_bytes(&rig, out)?,
-                "model/gltf-binary",
-            )
-        }
+        ExportKind::PersonalizedRig => (rig_bytes(scene, session, out)?, "model/gltf-binary"),
     })
 }
 
