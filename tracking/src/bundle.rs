@@ -98,11 +98,8 @@ impl NetworkBytes {
         footage: bool,
     ) -> Result<Tracker> {
         let track_net = TrackNet::from_backend(Box::new(self.track_net.tract()?), &self.manifest);
-        let follower = match &self.openseeface {
-            Some((detector, landmarks)) => Some(FaceFollower::new(OpenSeeFace::from_backends(
-                (Box::new(detector.tract()?), &detector.name),
-                (Box::new(landmarks.tract()?), &landmarks.name),
-            )?)),
+        let follower = match self.face_follower()? {
+            Some(follower) => Some(follower),
             None if footage => {
                 return Err(TrackingError::InvalidInput(
                     "real footage needs face detection: the OpenSeeFace models \
@@ -113,6 +110,15 @@ impl NetworkBytes {
             None => None,
         };
         Tracker::from_parts(face, config, self.manifest.clone(), track_net, follower)
+    }
+
+    /// The OpenSeeFace models on tract, following a face through a video; `None` without
+    /// them. The browser's face-locating worker runs one beside the tracker's own.
+    pub fn face_follower(&self) -> Result<Option<FaceFollower>> {
+        let Some((detector, landmarks)) = &self.openseeface else {
+            return Ok(None);
+        };
+        face_follower(detector, landmarks).map(Some)
     }
 
     /// ModelNet on tract.
@@ -128,4 +134,13 @@ impl NetworkBytes {
         self.manifest
             .mean_albedo_from_bytes(&self.mean_albedo.bytes)
     }
+}
+
+/// OpenSeeFace's detector and landmark network (the `_plain_b1` files) on tract, following
+/// a face through a video.
+pub fn face_follower(detector: &NamedBytes, landmarks: &NamedBytes) -> Result<FaceFollower> {
+    Ok(FaceFollower::new(OpenSeeFace::from_backends(
+        (Box::new(detector.tract()?), &detector.name),
+        (Box::new(landmarks.tract()?), &landmarks.name),
+    )?))
 }

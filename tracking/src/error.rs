@@ -33,6 +33,10 @@ pub enum TrackingError {
     Decode { path: PathBuf, reason: String },
     #[error("invalid session file {path}: {reason}")]
     Session { path: PathBuf, reason: String },
+    /// An error of this crate's code that ran elsewhere (the browser's face-locating Web
+    /// Worker), worded as it was there.
+    #[error("{0}")]
+    Relayed(String),
     #[error(transparent)]
     Face(#[from] face::FaceError),
 }

@@ -121,33 +121,107 @@ enum Locator {
     PreCropped,
 }
 
-/// Where the face is in one frame, as the locating stage hands it on.
-struct Located {
+/// Where the face is in one frame, as the locating stage hands it on to the rest of the
+/// tracker ([`Tracker::process_located`]). It crosses threads, and in the browser a Web
+/// Worker's message, so it has a flat form ([`LocatedFace::to_f32s`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LocatedFace {
     /// The detected landmarks in iBUG order; `None` for a pre-cropped image.
-    ibug68: Option<[Option<(Vec2, f32)>; crate::openseeface::IBUG_LANDMARK_COUNT]>,
+    ibug68: Option<Box<Ibug68>>,
     confidence: f32,
     detect_ms: f64,
     landmarks_ms: f64,
 }
 
+/// The iBUG landmarks with their confidence, `None` where one was not found.
+type Ibug68 = [Option<(Vec2, f32)>; crate::openseeface::IBUG_LANDMARK_COUNT];
+
+/// Length of [`LocatedFace::to_f32s`]: a header of four numbers, then x, y and confidence
+/// of each iBUG landmark.
+pub const LOCATED_FACE_F32S: usize = 4 + 3 * crate::openseeface::IBUG_LANDMARK_COUNT;
+
+impl LocatedFace {
+    /// The face [`FaceFollower::step`] found in the next frame of a video, or `None`.
+    pub fn follow(follower: &mut FaceFollower, image: &RgbImage) -> Result<Option<Self>> {
+        Ok(follower.step(image)?.map(|found| Self {
+            ibug68: Some(Box::new(found.landmarks.to_ibug68())),
+            confidence: found.landmarks.mean_confidence,
+            detect_ms: found.detect_ms,
+            landmarks_ms: found.landmarks_ms,
+        }))
+    }
+
+    fn pre_cropped() -> Self {
+        Self {
+            ibug68: None,
+            confidence: 1.0,
+            detect_ms: 0.0,
+            landmarks_ms: 0.0,
+        }
+    }
+
+    /// The flat form: `[has landmarks (0 or 1), confidence, detect ms, landmark ms]`, then
+    /// `x, y, confidence` per iBUG landmark, NaN for a landmark that was not found.
+    pub fn to_f32s(&self) -> Vec<f32> {
+        let mut out = Vec::with_capacity(LOCATED_FACE_F32S);
+        out.extend([
+            if self.ibug68.is_some() { 1.0 } else { 0.0 },
+            self.confidence,
+            self.detect_ms as f32,
+            self.landmarks_ms as f32,
+        ]);
+        for point in self.ibug68.iter().flat_map(|points| points.iter()) {
+            match point {
+                Some((p, c)) => out.extend([p.x, p.y, *c]),
+                None => out.extend([f32::NAN; 3]),
+            }
+        }
+        out.resize(LOCATED_FACE_F32S, f32::NAN);
+        out
+    }
+
+    /// Reads [`LocatedFace::to_f32s`]'s form back; an error for any other length, or for
+    /// values no locator produces (a header that is not finite, a half-missing landmark).
+    pub fn from_f32s(values: &[f32]) -> Result<Self> {
+        let bad = |reason: String| TrackingError::InvalidInput(format!("located face: {reason}"));
+        if values.len() != LOCATED_FACE_F32S {
+            return Err(bad(format!(
+                "{} numbers, expected {LOCATED_FACE_F32S}",
+                values.len()
+            )));
+        }
+        let (header, points) = values.split_at(4);
+        if header.iter().any(|v| !v.is_finite()) || !(header[0] == 0.0 || header[0] == 1.0) {
+            return Err(bad(format!("header {header:?}")));
+        }
+        let ibug68 = if header[0] == 1.0 {
+            let mut ibug = Box::new([None; crate::openseeface::IBUG_LANDMARK_COUNT]);
+            for (k, (slot, xyc)) in ibug.iter_mut().zip(points.chunks_exact(3)).enumerate() {
+                *slot = match xyc.iter().filter(|v| v.is_finite()).count() {
+                    3 => Some((Vec2::new(xyc[0], xyc[1]), xyc[2])),
+                    0 => None,
+                    _ => return Err(bad(format!("landmark {k} is {xyc:?}"))),
+                };
+            }
+            Some(ibug)
+        } else {
+            None
+        };
+        Ok(Self {
+            ibug68,
+            confidence: header[1],
+            detect_ms: f64::from(header[2]),
+            landmarks_ms: f64::from(header[3]),
+        })
+    }
+}
+
 impl Locator {
     /// `None`: the frame shows no face.
-    fn locate(&mut self, image: &RgbImage) -> Result<Option<Box<Located>>> {
+    fn locate(&mut self, image: &RgbImage) -> Result<Option<LocatedFace>> {
         match self {
-            Locator::PreCropped => Ok(Some(Box::new(Located {
-                ibug68: None,
-                confidence: 1.0,
-                detect_ms: 0.0,
-                landmarks_ms: 0.0,
-            }))),
-            Locator::Landmarks(follower) => Ok(follower.step(image)?.map(|found| {
-                Box::new(Located {
-                    ibug68: Some(found.landmarks.to_ibug68()),
-                    confidence: found.landmarks.mean_confidence,
-                    detect_ms: found.detect_ms,
-                    landmarks_ms: found.landmarks_ms,
-                })
-            })),
+            Locator::PreCropped => Ok(Some(LocatedFace::pre_cropped())),
+            Locator::Landmarks(follower) => LocatedFace::follow(follower, image),
         }
     }
 
@@ -160,7 +234,7 @@ impl Locator {
 
 /// What the locating stage of [`Tracker::track_source`] sends on.
 enum Staged {
-    Frame(Frame, Result<Option<Box<Located>>>),
+    Frame(Frame, Result<Option<LocatedFace>>),
     Skipped(FrameError),
     Broken(TrackingError),
 }
@@ -333,28 +407,35 @@ impl Tracker {
     /// Tracks one frame. Never fails: a frame without a face, or whose networks produce
     /// NaN, is a "no face" record saying why.
     pub fn process(&mut self, frame: &Frame) -> FrameOutput {
-        match self.process_inner(&frame.image, frame.index, frame.time_s) {
-            Ok(out) => out,
-            Err(e) => {
-                self.smoother.reset();
-                FrameOutput::none(FrameRecord::no_face(
-                    frame.index,
-                    frame.time_s,
-                    Some(e.to_string()),
-                ))
-            }
-        }
+        let (width, height) = frame.image.dimensions();
+        let located = crate::source::check_frame_size(width, height)
+            .and_then(|()| self.locator.locate(&frame.image));
+        self.process_located(frame, located)
     }
 
-    fn process_inner(
+    /// Tracks one frame whose face was located elsewhere (another thread, the browser's
+    /// Web Worker) by [`LocatedFace::follow`] with this tracker's OpenSeeFace models: the
+    /// same output as [`Tracker::process`] given the same locating, so that stage can run
+    /// beside this one. Frames must come in order; `located` is that stage's result for
+    /// `frame`. Never fails, as [`Tracker::process`].
+    pub fn process_located(
         &mut self,
-        image: &RgbImage,
-        index: usize,
-        time_s: f64,
-    ) -> Result<FrameOutput> {
-        crate::source::check_frame_size(image.width(), image.height())?;
-        let located = self.locator.locate(image)?;
-        self.finish(image, index, time_s, located)
+        frame: &Frame,
+        located: Result<Option<LocatedFace>>,
+    ) -> FrameOutput {
+        let image = &frame.image;
+        // Checked again: `located` may come from a thread that did not check.
+        let output = crate::source::check_frame_size(image.width(), image.height())
+            .and(located)
+            .and_then(|located| self.finish(image, frame.index, frame.time_s, located));
+        output.unwrap_or_else(|e| {
+            self.smoother.reset();
+            FrameOutput::none(FrameRecord::no_face(
+                frame.index,
+                frame.time_s,
+                Some(e.to_string()),
+            ))
+        })
     }
 
     /// Everything after locating the face: crop, TrackNet, refinement, smoothing.
@@ -363,7 +444,7 @@ impl Tracker {
         image: &RgbImage,
         index: usize,
         time_s: f64,
-        located: Option<Box<Located>>,
+        located: Option<LocatedFace>,
     ) -> Result<FrameOutput> {
         let Some(located) = located else {
             self.smoother.reset();
@@ -492,16 +573,7 @@ impl Tracker {
                             self.last_time_s = None;
                         }
                         size = Some(dims);
-                        let output = located
-                            .and_then(|l| self.finish(&frame.image, frame.index, frame.time_s, l))
-                            .unwrap_or_else(|e| {
-                                self.smoother.reset();
-                                FrameOutput::none(FrameRecord::no_face(
-                                    frame.index,
-                                    frame.time_s,
-                                    Some(e.to_string()),
-                                ))
-                            });
+                        let output = self.process_located(&frame, located);
                         on_event(TrackEvent::Frame(frame, Box::new(output)))
                     }
                     Staged::Broken(e) => return Err(e),
@@ -621,6 +693,63 @@ impl FrameOutput {
             observations: None,
             confidence: 0.0,
             times: StageTimes::default(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn some_face() -> LocatedFace {
+        let mut ibug = [None; crate::openseeface::IBUG_LANDMARK_COUNT];
+        for (k, slot) in ibug.iter_mut().enumerate() {
+            // Landmark 30 was not found.
+            if k != 30 {
+                *slot = Some((Vec2::new(100.0 + k as f32 * 1.5, 200.25 - k as f32), 0.5));
+            }
+        }
+        LocatedFace {
+            ibug68: Some(Box::new(ibug)),
+            confidence: 0.75,
+            detect_ms: 2.5,
+            landmarks_ms: 20.0,
+        }
+    }
+
+    #[test]
+    fn the_flat_form_reads_back_what_was_written() {
+        for face in [some_face(), LocatedFace::pre_cropped()] {
+            let numbers = face.to_f32s();
+            assert_eq!(numbers.len(), LOCATED_FACE_F32S);
+            assert_eq!(LocatedFace::from_f32s(&numbers).expect("reads back"), face);
+        }
+        assert!(
+            some_face().to_f32s()[4 + 3 * 30..4 + 3 * 31]
+                .iter()
+                .all(|v| v.is_nan())
+        );
+    }
+
+    #[test]
+    fn numbers_no_locator_writes_are_refused() {
+        let good = some_face().to_f32s();
+        let mut cases = vec![good[..good.len() - 1].to_vec(), Vec::new()];
+        let mut half_missing = good.clone();
+        half_missing[4] = f32::NAN;
+        cases.push(half_missing);
+        let mut bad_flag = good.clone();
+        bad_flag[0] = 0.5;
+        cases.push(bad_flag);
+        let mut nan_confidence = good;
+        nan_confidence[1] = f32::NAN;
+        cases.push(nan_confidence);
+        for case in cases {
+            let error = LocatedFace::from_f32s(&case).expect_err("refused");
+            assert!(
+                error.to_string().starts_with("invalid input: located face"),
+                "{error}"
+            );
         }
     }
 }

@@ -11,7 +11,7 @@ use common::face_model;
 use tracking::backend::{BackendChoice, BackendKind, InferenceBackend, Tensor};
 use tracking::evaluate::{Clip, default_clips_dir};
 use tracking::networks::{Manifest, TrackNet, default_networks_dir};
-use tracking::pipeline::{LocatorChoice, Tracker, TrackerConfig};
+use tracking::pipeline::{LocatedFace, LocatorChoice, Tracker, TrackerConfig};
 use tracking::source::{FrameSource, Next};
 
 fn clip() -> Clip {
@@ -337,4 +337,60 @@ fn the_two_stage_pipeline_gives_the_frame_by_frame_results_and_keeps_them_when_f
         panic!("no frame")
     };
     assert!(tracker.process(&f).record.face);
+}
+
+/// The browser locates faces in a Web Worker and tracks the rest on the page's thread; the
+/// locating stage's result crosses as numbers. Tracking that way must be tracking.
+#[test]
+fn a_face_located_elsewhere_and_sent_as_numbers_tracks_as_in_one_tracker() {
+    let clip = clip();
+    let networks = tracking::bundle::NetworkBytes::read(
+        &default_networks_dir(),
+        Some(&tracking::openseeface::default_models_dir()),
+    )
+    .expect("networks and OpenSeeFace models");
+    let config = TrackerConfig {
+        fov_deg: Some(clip.fov_deg()),
+        ..TrackerConfig::default()
+    };
+    let mut whole = networks
+        .tracker(face_model(), config.clone(), true)
+        .expect("tracker");
+    let mut split = networks
+        .tracker(face_model(), config, true)
+        .expect("tracker");
+    let mut follower = networks
+        .face_follower()
+        .expect("follower")
+        .expect("OpenSeeFace models were given");
+    let mut source = clip.source();
+    for k in 0..8 {
+        let Next::Frame(frame) = source.next_frame().expect("frame") else {
+            panic!("clip frame {k} unreadable");
+        };
+        let expected = whole.process(&frame);
+        let located = LocatedFace::follow(&mut follower, &frame.image)
+            .expect("located")
+            .expect("the clip shows a face");
+        let numbers = located.to_f32s();
+        assert_eq!(numbers.len(), tracking::pipeline::LOCATED_FACE_F32S);
+        let received = LocatedFace::from_f32s(&numbers).expect("the flat form reads back");
+        let output = split.process_located(&frame, Ok(Some(received)));
+        assert!(expected.record.face);
+        assert_eq!(output.record, expected.record, "frame {k}");
+        assert_eq!(output.crop, expected.crop, "frame {k}");
+    }
+    // An error of the locating stage is that frame's "no face" record, saying why; the
+    // next frame tracks again.
+    let Next::Frame(frame) = source.next_frame().expect("frame") else {
+        panic!("clip frame unreadable");
+    };
+    let failed = split.process_located(
+        &frame,
+        Err(tracking::TrackingError::Relayed("the worker broke".into())),
+    );
+    assert!(!failed.record.face);
+    assert!(format!("{:?}", failed.record).contains("the worker broke"));
+    let located = LocatedFace::follow(&mut follower, &frame.image).expect("located");
+    assert!(split.process_located(&frame, Ok(located)).record.face);
 }
