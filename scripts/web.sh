@@ -36,7 +36,7 @@ if [ "$build" -eq 1 ]; then
   wasm-bindgen --target web --no-typescript --remove-name-section --remove-producers-section \
     --out-dir "$dist" \
     "$root/target/wasm32-unknown-unknown/release/likeness_web.wasm"
-  cp web/index.html "$dist/"
+  cp web/index.html web/worker.js "$dist/"
   # Served by link: the project's own files from assets/, third-party data from where the
   # user keeps it.
   ln -s "$root/assets/models" "$dist/models"

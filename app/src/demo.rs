@@ -626,6 +626,9 @@ pub struct SteppedDemo {
     in_flight: bool,
     tracking: Option<crate::stepped::SteppedTracking>,
     pub progress: crate::footage::Progress,
+    /// Locates faces in the clip beside this thread (the browser's worker), if set before
+    /// tracking starts.
+    pub remote_locator: Option<Box<dyn crate::stepped::RemoteFaceLocator>>,
 }
 
 impl SteppedDemo {
@@ -662,6 +665,7 @@ impl SteppedDemo {
             rendered: Vec::new(),
             in_flight: false,
             tracking: None,
+            remote_locator: None,
         })
     }
 
@@ -748,7 +752,8 @@ impl SteppedDemo {
             crate::stepped::FrameFeed::clip(frames, self.config.fps),
             usize::MAX,
             self.config.personalize_frames,
-        );
+        )
+        .with_remote_locator(self.remote_locator.take());
         self.progress = tracking.progress.clone();
         self.tracking = Some(tracking);
         Ok(())

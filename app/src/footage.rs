@@ -386,8 +386,14 @@ mod stepped {
             )
         }
 
-        /// Tracks and personalizes `feed`, called `input` in messages.
-        pub fn start_feed(scene: Arc<Scene>, input: String, feed: FrameFeed) -> Result<Self> {
+        /// Tracks and personalizes `feed`, called `input` in messages, locating faces with
+        /// `remote_locator` beside the page's thread when there is one.
+        pub fn start_feed(
+            scene: Arc<Scene>,
+            input: String,
+            feed: FrameFeed,
+            remote_locator: Option<Box<dyn crate::stepped::RemoteFaceLocator>>,
+        ) -> Result<Self> {
             let networks = scene
                 .networks
                 .clone()
@@ -409,7 +415,8 @@ mod stepped {
                 request.max_frames,
                 request.personalize_frames,
             )
-            .with_memory_limit(MAX_FOOTAGE_BYTES);
+            .with_memory_limit(MAX_FOOTAGE_BYTES)
+            .with_remote_locator(remote_locator);
             Ok(Self {
                 input,
                 progress: tracking.progress.clone(),

@@ -986,7 +986,10 @@ impl StudioApp {
             },
         );
         match made {
-            Ok(job) => self.demo_job = Some(job),
+            Ok(mut job) => {
+                job.remote_locator = self.web_host.as_ref().and_then(|host| host.face_locator());
+                self.demo_job = Some(job);
+            }
             Err(e) => self
                 .state
                 .notices
@@ -1074,7 +1077,8 @@ impl StudioApp {
     /// Starts a footage job on frames the page supplies (the browser).
     #[cfg(target_arch = "wasm32")]
     fn start_feed(&mut self, input: &str, feed: crate::stepped::FrameFeed) {
-        match FootageJob::start_feed(self.scene.clone(), input.to_owned(), feed) {
+        let remote = self.web_host.as_ref().and_then(|host| host.face_locator());
+        match FootageJob::start_feed(self.scene.clone(), input.to_owned(), feed, remote) {
             Ok(job) => {
                 self.job = Some(job);
                 self.stop_demo_for("your footage");

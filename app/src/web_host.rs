@@ -61,6 +61,9 @@ pub trait WebHost {
     /// The camera's newest frame.
     fn camera_frame(&self) -> CameraFrame;
     fn stop_camera(&self);
+    /// The page's face-locating worker, for one job; `None` when the page has none (the
+    /// job then locates faces on the page's thread).
+    fn face_locator(&self) -> Option<Box<dyn crate::stepped::RemoteFaceLocator>>;
 }
 
 /// Whether a file name is a video the browser can decode (by extension).

@@ -10,10 +10,10 @@ use likeness::demo::{
     DemoConfig, SteppedDemo, demo_motion, landmark_nme, render_clip, synthetic_person,
 };
 use likeness::scene::Scene;
-use likeness::stepped::{FrameFeed, LiveFrame, SteppedTracking};
+use likeness::stepped::{FrameFeed, LiveFrame, LocatorReply, RemoteFaceLocator, SteppedTracking};
 use renderer::OffscreenRenderer;
 use tracking::bundle::NetworkBytes;
-use tracking::pipeline::TrackerConfig;
+use tracking::pipeline::{LocatedFace, TrackerConfig};
 use web_time::Duration;
 
 fn scene_with_networks() -> Arc<Scene> {
@@ -248,4 +248,167 @@ fn a_memory_limit_ends_a_recording_with_the_frames_that_fit() {
         4,
         "the recording ends by itself at the limit"
     );
+}
+
+/// The browser's face-locating worker, as a thread: frames in, located faces back as
+/// numbers, in order. `fails_after`: it stops (as a worker that crashed) after answering
+/// that many frames.
+struct ThreadLocator {
+    frames: Option<std::sync::mpsc::Sender<(image::RgbImage, bool)>>,
+    answers: std::sync::mpsc::Receiver<Result<Option<Vec<f32>>, String>>,
+    answered: usize,
+    fails_after: Option<usize>,
+    sent_resets: Arc<std::sync::Mutex<Vec<bool>>>,
+    /// The most frames sent and not yet answered at once.
+    most_outstanding: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl ThreadLocator {
+    fn start(scene: &Scene, fails_after: Option<usize>) -> Self {
+        let networks = scene.networks.clone().expect("networks");
+        let (frames, inbox) = std::sync::mpsc::channel::<(image::RgbImage, bool)>();
+        let (outbox, answers) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut follower = networks
+                .face_follower()
+                .expect("follower")
+                .expect("OpenSeeFace models");
+            for (image, reset) in inbox {
+                if reset {
+                    follower.reset();
+                }
+                let answer = LocatedFace::follow(&mut follower, &image)
+                    .map(|found| found.map(|face| face.to_f32s()))
+                    .map_err(|e| e.to_string());
+                if outbox.send(answer).is_err() {
+                    break;
+                }
+            }
+        });
+        Self {
+            frames: Some(frames),
+            answers,
+            answered: 0,
+            fails_after,
+            sent_resets: Arc::default(),
+            most_outstanding: Arc::default(),
+        }
+    }
+}
+
+impl RemoteFaceLocator for ThreadLocator {
+    fn send(&mut self, image: &image::RgbImage, reset: bool) -> Result<(), String> {
+        let mut sent = self.sent_resets.lock().expect("lock");
+        sent.push(reset);
+        self.most_outstanding.fetch_max(
+            sent.len() - self.answered,
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        let frames = self.frames.as_ref().ok_or("the worker stopped")?;
+        frames
+            .send((image.clone(), reset))
+            .map_err(|_| "the worker stopped".to_string())
+    }
+
+    fn receive(&mut self) -> Option<LocatorReply> {
+        if self.fails_after.is_some_and(|n| self.answered >= n) {
+            self.frames = None;
+            return Some(LocatorReply::Failed("the worker crashed".into()));
+        }
+        let answer = self.answers.try_recv().ok()?;
+        self.answered += 1;
+        Some(LocatorReply::Located(
+            answer
+                .map_err(tracking::TrackingError::Relayed)
+                .and_then(|numbers| numbers.map(|n| LocatedFace::from_f32s(&n)).transpose()),
+        ))
+    }
+}
+
+fn run_to_end(mut job: SteppedTracking) -> likeness::stepped::Tracked {
+    let started = web_time::Instant::now();
+    loop {
+        assert!(started.elapsed().as_secs() < 600, "the job never ended");
+        if let Some(result) = job.step(Duration::from_millis(20)) {
+            break result.unwrap_or_else(|e| panic!("{e}"));
+        }
+        // As the page does between UI frames: the locator works meanwhile.
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+}
+
+#[test]
+fn faces_located_beside_the_job_track_as_on_its_own_thread() {
+    let scene = scene_with_networks();
+    let config = DemoConfig {
+        frames: 16,
+        ..config()
+    };
+    let frames = clip(&scene, &config);
+    let alone = run_to_end(stepped_tracking(
+        &scene,
+        FrameFeed::clip(frames.clone(), 30.0),
+    ));
+    let locator = ThreadLocator::start(&scene, None);
+    let resets = locator.sent_resets.clone();
+    let outstanding = locator.most_outstanding.clone();
+    let job = stepped_tracking(&scene, FrameFeed::clip(frames.clone(), 30.0))
+        .with_remote_locator(Some(Box::new(locator)));
+    assert!(job.locating_beside());
+    let beside = run_to_end(job);
+    // The same frames, the same records, the same person, in the same order.
+    assert_eq!(beside.frames.len(), 16);
+    assert_eq!(beside.records, alone.records);
+    assert_eq!(beside.selected_frames, alone.selected_frames);
+    assert_eq!(beside.rate.frames, 16);
+    // The worker's own time counts in the tracker's.
+    assert!(beside.rate.stage_ms.landmarks_ms > 0.0);
+    // Only the job's first frame starts the worker's face afresh.
+    let resets = resets.lock().expect("lock").clone();
+    assert_eq!(resets.len(), 16);
+    assert!(resets[0] && resets[1..].iter().all(|r| !r), "{resets:?}");
+    // A clip keeps the worker's queue full, within bounds.
+    let most = outstanding.load(std::sync::atomic::Ordering::Relaxed);
+    assert!((2..=12).contains(&most), "{most} frames outstanding");
+
+    // A camera with a frame on every poll: a few frames outstanding at most, the rest of
+    // the camera's frames are skipped rather than queued.
+    let locator = ThreadLocator::start(&scene, None);
+    let outstanding = locator.most_outstanding.clone();
+    let camera_frames = frames.clone();
+    let mut polls = 0usize;
+    let camera = move || {
+        polls += 1;
+        LiveFrame::Frame(camera_frames[polls % camera_frames.len()].clone())
+    };
+    let mut live = stepped_tracking(
+        &scene,
+        FrameFeed::Live {
+            next: Box::new(camera),
+            fps: 30.0,
+        },
+    )
+    .with_remote_locator(Some(Box::new(locator)));
+    while live.rate.frames < 8 {
+        assert!(live.step(Duration::from_millis(20)).is_none());
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    let most = outstanding.load(std::sync::atomic::Ordering::Relaxed);
+    assert!((1..=3).contains(&most), "{most} camera frames outstanding");
+
+    // A worker that crashes part way: the job finishes every frame on its own thread.
+    let crashing = stepped_tracking(&scene, FrameFeed::clip(frames, 30.0))
+        .with_remote_locator(Some(Box::new(ThreadLocator::start(&scene, Some(5)))));
+    let recovered = run_to_end(crashing);
+    assert_eq!(recovered.records.len(), 16);
+    assert!(
+        recovered.records.iter().all(|r| r.face),
+        "every frame shows the face"
+    );
+    // Personalization saw other landmarks, so the final records differ; what the worker
+    // answered before it crashed was tracked as before.
+    for k in 0..5 {
+        let (a, b) = (&recovered.outputs[k], &alone.outputs[k]);
+        assert_eq!((a.crop, a.tracknet), (b.crop, b.tracknet), "frame {k}");
+    }
 }

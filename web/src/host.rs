@@ -5,6 +5,7 @@
 
 use std::cell::RefCell;
 use std::rc::Rc;
+use tracking::bundle::NamedBytes;
 
 use image::RgbImage;
 use likeness::web_host::{CameraFrame, PickedFile, VideoFrames, WebHost};
@@ -13,6 +14,7 @@ use wasm_bindgen::prelude::*;
 use wasm_bindgen_futures::JsFuture;
 
 use crate::page::js_error;
+use crate::worker::LocatorWorker;
 
 /// Frame rate assumed for video files: the browser does not tell a file's own.
 const VIDEO_FPS: f64 = 30.0;
@@ -26,16 +28,25 @@ struct Camera {
     last_time: f64,
 }
 
-#[derive(Default)]
 pub struct PageHost {
     picked: Rc<RefCell<Vec<PickedFile>>>,
     video: Rc<RefCell<Option<VideoFrames>>>,
     camera: Rc<RefCell<Camera>>,
+    /// The OpenSeeFace detector and landmark network, for the face-locating worker.
+    openseeface: Option<(NamedBytes, NamedBytes)>,
+    /// The worker, started by the first job that asks for it.
+    locator: RefCell<Option<Rc<LocatorWorker>>>,
 }
 
 impl PageHost {
-    pub fn new() -> Self {
-        Self::default()
+    pub fn new(openseeface: Option<(NamedBytes, NamedBytes)>) -> Self {
+        Self {
+            picked: Rc::default(),
+            video: Rc::default(),
+            camera: Rc::default(),
+            openseeface,
+            locator: RefCell::new(None),
+        }
     }
 }
 
@@ -207,7 +218,43 @@ async fn start_camera(camera: Rc<RefCell<Camera>>) -> Result<(), String> {
     Ok(())
 }
 
+impl PageHost {
+    /// The face-locating worker: `None` before a job asked for it, then whether it runs
+    /// or why it stopped.
+    pub fn worker_state(&self) -> Option<Result<(), String>> {
+        let slot = self.locator.borrow();
+        let worker = slot.as_ref()?;
+        Some(worker.failed().map_or(Ok(()), Err))
+    }
+}
+
 impl WebHost for PageHost {
+    fn face_locator(&self) -> Option<Box<dyn likeness::stepped::RemoteFaceLocator>> {
+        let mut slot = self.locator.borrow_mut();
+        if let Some(worker) = slot.as_ref() {
+            // A worker that stopped stays stopped: jobs locate faces on this thread.
+            return match worker.failed() {
+                None => Some(Box::new(worker.channel())),
+                Some(_) => None,
+            };
+        }
+        let (detector, landmarks) = self.openseeface.as_ref()?;
+        match LocatorWorker::start(&detector.bytes, &landmarks.bytes) {
+            Ok(worker) => {
+                let worker = Rc::new(worker);
+                let channel = worker.channel();
+                *slot = Some(worker);
+                Some(Box::new(channel))
+            }
+            Err(e) => {
+                tracing::warn!(
+                    "no face-locating worker ({e}); faces are located on the page's thread"
+                );
+                None
+            }
+        }
+    }
+
     fn pick_files(&self, accept: &str) {
         let input: web_sys::HtmlInputElement = match create("input") {
             Ok(input) => input,

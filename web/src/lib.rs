@@ -3,18 +3,22 @@
 //! Owns what only a web page has: fetching the template and the networks from the served
 //! directory (with a page message when they are absent), starting eframe's web runner on
 //! the page's canvas, the page's side of files, downloads, video decoding and the webcam
-//! (`getUserMedia`), and the numbers the page reports (`window.likeness`: time to first
-//! frame, tracking frames per second). It must not hold the model's mathematics or the
-//! studio's panels: those are `face`, `tracking` and `likeness`, the same code the native
-//! studio runs.
+//! (`getUserMedia`), the face-locating Web Worker that gives tracking a second core, and
+//! the numbers the page reports (`window.likeness`: time to first frame, the tracking
+//! benchmark). It must not hold the model's mathematics or the studio's panels: those are
+//! `face`, `tracking` and `likeness`, the same code the native studio runs.
 //!
 //! The asset list and its messages are plain Rust, tested natively; the rest compiles only
 //! for wasm32.
 
 #[cfg(target_arch = "wasm32")]
+mod bench;
+#[cfg(target_arch = "wasm32")]
 mod host;
 #[cfg(target_arch = "wasm32")]
 mod page;
+#[cfg(target_arch = "wasm32")]
+mod worker;
 
 use std::collections::HashMap;
 

@@ -1,7 +1,7 @@
 //! The page: fetches what the studio needs, starts the studio on the canvas, and keeps
 //! `window.likeness` (what the page reports: status, timings, tracking rate) up to date.
 
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::path::Path;
 use std::rc::Rc;
 use std::sync::Arc;
@@ -14,6 +14,7 @@ use wasm_bindgen::JsCast;
 use wasm_bindgen::prelude::*;
 use wasm_bindgen_futures::JsFuture;
 
+use crate::bench::BenchState;
 use crate::host::PageHost;
 use crate::{Asset, Fetched, REQUIRED_ASSETS, missing_message};
 
@@ -42,7 +43,7 @@ impl Report {
     }
 
     fn set(&self, key: &str, value: impl Into<JsValue>) {
-        let _ = js_sys::Reflect::set(&self.object, &key.into(), &value.into());
+        js_set(&self.object, key, value);
     }
 
     /// The status line under the canvas, and `window.likeness.status`.
@@ -59,6 +60,11 @@ impl Report {
             let _ = element.set_attribute("class", if is_error { "error" } else { "" });
         }
     }
+}
+
+/// `object[key] = value`. Setting a property of a plain object the page made cannot fail.
+pub(crate) fn js_set(object: &js_sys::Object, key: &str, value: impl Into<JsValue>) {
+    let _ = js_sys::Reflect::set(object, &key.into(), &value.into());
 }
 
 fn now_ms() -> f64 {
@@ -101,11 +107,11 @@ pub(crate) fn js_error(value: &JsValue) -> String {
         .unwrap_or_else(|| format!("{value:?}"))
 }
 
-/// Yields to the browser so the status line is drawn before a long synchronous step.
-async fn next_tick() {
+/// Yields to the browser for `ms` milliseconds (at least until its next task).
+pub(crate) async fn sleep(ms: i32) {
     let promise = js_sys::Promise::new(&mut |resolve, _| {
         if let Some(window) = web_sys::window() {
-            let _ = window.set_timeout_with_callback_and_timeout_and_arguments_0(&resolve, 0);
+            let _ = window.set_timeout_with_callback_and_timeout_and_arguments_0(&resolve, ms);
         }
     });
     let _ = JsFuture::from(promise).await;
@@ -113,6 +119,10 @@ async fn next_tick() {
 
 #[wasm_bindgen(start)]
 pub fn start() {
+    // The face-locating worker instantiates this module too; it has no page to run.
+    if web_sys::window().is_none() {
+        return;
+    }
     // A panic is the page's error too (the test and the status line see it), then the
     // console's, with its stack.
     std::panic::set_hook(Box::new(|info| {
@@ -145,7 +155,8 @@ async fn run(report: &Report) -> Result<(), String> {
     }
     report.set("assetsMs", now_ms());
     report.status("reading the face template...", false);
-    next_tick().await;
+    // The status line is drawn before the long synchronous step.
+    sleep(0).await;
     let scene = make_scene(&mut fetched)?;
     report.set("sceneMs", now_ms());
     report.status("starting the studio...", false);
@@ -155,6 +166,7 @@ async fn run(report: &Report) -> Result<(), String> {
         .and_then(|e| e.dyn_into::<web_sys::HtmlCanvasElement>().ok())
         .ok_or("the page has no <canvas id=\"likeness\">")?;
     let puppet = fetched.take(&crate::DEMO_PUPPET);
+    let openseeface = scene.networks.as_ref().and_then(|n| n.openseeface.clone());
     let runner = eframe::WebRunner::new();
     let options = eframe::WebOptions::default();
     let scene = Arc::new(scene);
@@ -165,9 +177,13 @@ async fn run(report: &Report) -> Result<(), String> {
             canvas,
             options,
             Box::new(move |cc| {
-                let mut studio = StudioApp::new(cc, scene);
-                let host: Rc<dyn WebHost> = Rc::new(PageHost::new());
-                studio.web_host = Some(host);
+                let mut studio = StudioApp::new(cc, scene.clone());
+                let page_host = Rc::new(PageHost::new(openseeface));
+                let host: Rc<dyn WebHost> = page_host.clone();
+                studio.web_host = Some(host.clone());
+                let bench = Rc::new(RefCell::new(BenchState::default()));
+                let report = Report::new_shared();
+                crate::bench::install(&report.object, bench.clone(), cc.egui_ctx.clone());
                 if let Some(bytes) = puppet {
                     studio.puppet_panel.demo_puppet_bytes = Some(likeness::web_host::PickedFile {
                         name: crate::DEMO_PUPPET.url.to_owned(),
@@ -186,7 +202,11 @@ async fn run(report: &Report) -> Result<(), String> {
                 started_in_app.set(true);
                 Ok(Box::new(WebStudio {
                     studio,
-                    report: Report::new_shared(),
+                    scene,
+                    host,
+                    page_host,
+                    bench,
+                    report,
                     backend,
                     frames: 0,
                     demo_reported: false,
@@ -237,9 +257,31 @@ fn make_scene(fetched: &mut Fetched) -> Result<Scene, String> {
     Ok(scene)
 }
 
+/// Mean milliseconds per frame in each stage of tracking.
+pub(crate) fn stage_ms(rate: &likeness::stepped::TrackingRate) -> js_sys::Object {
+    let n = rate.frames.max(1) as f64;
+    let t = &rate.stage_ms;
+    let stages = js_sys::Object::new();
+    for (name, ms) in [
+        ("detect", t.detect_ms),
+        ("landmarks", t.landmarks_ms),
+        ("crop", t.crop_ms),
+        ("tracknet", t.tracknet_ms),
+        ("refine", t.refine_ms),
+        ("smooth", t.smooth_ms),
+    ] {
+        js_set(&stages, name, ms / n);
+    }
+    stages
+}
+
 /// The studio with the page's reporting around it.
 struct WebStudio {
     studio: StudioApp,
+    scene: Arc<Scene>,
+    host: Rc<dyn WebHost>,
+    page_host: Rc<PageHost>,
+    bench: Rc<RefCell<BenchState>>,
     report: Report,
     backend: String,
     frames: u64,
@@ -258,7 +300,25 @@ impl eframe::App for WebStudio {
     }
 
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+        if self.bench.borrow().running {
+            // The benchmark has the page's thread to itself; nothing asks for a repaint.
+            ui.centered_and_justified(|ui| ui.heading("measuring the tracking rate..."));
+            return;
+        }
         self.studio.ui(ui, frame);
+        let demo_frames = || {
+            self.studio
+                .session()
+                .filter(|s| s.source == likeness::studio_session::DEMO_SOURCE)
+                .map(|s| s.frames.clone())
+        };
+        crate::bench::start_if_requested(
+            &self.bench,
+            &self.scene,
+            &self.host,
+            demo_frames,
+            ui.ctx(),
+        );
         self.frames += 1;
         if self.frames == 1 {
             self.report.set("firstFrameMs", now_ms());
@@ -267,6 +327,14 @@ impl eframe::App for WebStudio {
                 .status(&format!("studio running on {}", self.backend), false);
         }
         self.report.set("frames", self.frames as f64);
+        self.report.set(
+            "worker",
+            match self.page_host.worker_state() {
+                None => "not started".to_owned(),
+                Some(Ok(())) => "running".to_owned(),
+                Some(Err(reason)) => format!("stopped: {reason}"),
+            },
+        );
         // What the studio holds now, for people reading the page and for the tests.
         match self.studio.session() {
             Some(session) => {
@@ -337,21 +405,7 @@ impl eframe::App for WebStudio {
                 if let Some(fps) = rate.wall_fps() {
                     self.report.set("trackingWallFps", fps);
                 }
-                // Mean milliseconds per frame in each stage.
-                let n = rate.frames.max(1) as f64;
-                let t = &rate.stage_ms;
-                let stages = js_sys::Object::new();
-                for (name, ms) in [
-                    ("detect", t.detect_ms),
-                    ("landmarks", t.landmarks_ms),
-                    ("crop", t.crop_ms),
-                    ("tracknet", t.tracknet_ms),
-                    ("refine", t.refine_ms),
-                    ("smooth", t.smooth_ms),
-                ] {
-                    let _ = js_sys::Reflect::set(&stages, &name.into(), &(ms / n).into());
-                }
-                self.report.set("trackingStageMs", stages);
+                self.report.set("trackingStageMs", stage_ms(&rate));
                 if let Some(fps) = rate.fps() {
                     self.report.set("trackingFps", fps);
                 }
