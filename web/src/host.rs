@@ -34,8 +34,9 @@ pub struct PageHost {
     camera: Rc<RefCell<Camera>>,
     /// The OpenSeeFace detector and landmark network, for the face-locating worker.
     openseeface: Option<(NamedBytes, NamedBytes)>,
-    /// The worker, started by the first job that asks for it.
-    locator: RefCell<Option<Rc<LocatorWorker>>>,
+    /// The worker, started by the first job that asks for it; why it could not start, if
+    /// it could not (it is not tried again: jobs then locate faces on the page's thread).
+    locator: RefCell<Option<Result<Rc<LocatorWorker>, String>>>,
 }
 
 impl PageHost {
@@ -222,36 +223,30 @@ impl PageHost {
     /// The face-locating worker: `None` before a job asked for it, then whether it runs
     /// or why it stopped.
     pub fn worker_state(&self) -> Option<Result<(), String>> {
-        let slot = self.locator.borrow();
-        let worker = slot.as_ref()?;
-        Some(worker.failed().map_or(Ok(()), Err))
+        match self.locator.borrow().as_ref()? {
+            Ok(worker) => Some(worker.failed().map_or(Ok(()), Err)),
+            Err(reason) => Some(Err(reason.clone())),
+        }
     }
 }
 
 impl WebHost for PageHost {
     fn face_locator(&self) -> Option<Box<dyn likeness::stepped::RemoteFaceLocator>> {
         let mut slot = self.locator.borrow_mut();
-        if let Some(worker) = slot.as_ref() {
-            // A worker that stopped stays stopped: jobs locate faces on this thread.
-            return match worker.failed() {
-                None => Some(Box::new(worker.channel())),
-                Some(_) => None,
-            };
-        }
-        let (detector, landmarks) = self.openseeface.as_ref()?;
-        match LocatorWorker::start(&detector.bytes, &landmarks.bytes) {
-            Ok(worker) => {
-                let worker = Rc::new(worker);
-                let channel = worker.channel();
-                *slot = Some(worker);
-                Some(Box::new(channel))
-            }
-            Err(e) => {
+        if slot.is_none() {
+            let (detector, landmarks) = self.openseeface.as_ref()?;
+            let started = LocatorWorker::start(&detector.bytes, &landmarks.bytes);
+            if let Err(e) = &started {
                 tracing::warn!(
                     "no face-locating worker ({e}); faces are located on the page's thread"
                 );
-                None
             }
+            *slot = Some(started.map(Rc::new));
+        }
+        // A worker that stopped, or never started, stays so: jobs locate faces here.
+        match slot.as_ref()? {
+            Ok(worker) if worker.failed().is_none() => Some(Box::new(worker.channel())),
+            _ => None,
         }
     }
 
