@@ -200,14 +200,39 @@ fn albedo_correction_matches_equation_3_on_the_cpu() {
             .model
             .albedo(scene.albedo.face(), &person, &weights)
             .expect("equation 3");
+        let face_texels = likeness::scene::rgba8_texels(&albedo);
+        let face_layer = face::albedo::AlbedoLayer::Face.index();
+        // Uploaded whole, then as the demo clip does, the face layer alone: the same
+        // picture, to the bit.
+        let mut whole = scene.textures.clone();
+        whole.layers[face_layer] = face_texels.clone();
         renderer
             .face
-            .set_albedo(
-                &renderer.queue,
-                &likeness::demo::layers_with_face(&scene.textures, &albedo),
-            )
+            .set_albedo(&renderer.queue, &whole)
             .expect("albedo");
         let cpu = view(renderer);
+        renderer
+            .face
+            .set_albedo(&renderer.queue, &scene.textures)
+            .expect("mean albedo");
+        renderer
+            .face
+            .set_albedo_layer(&renderer.queue, face_layer as u32, &face_texels)
+            .expect("face layer");
+        assert!(
+            view(renderer) == cpu,
+            "one layer uploaded draws as the whole array"
+        );
+        for (layer, texels) in [
+            (99, face_texels.clone()),
+            (face_layer as u32, face_texels[1..].to_vec()),
+        ] {
+            let error = renderer
+                .face
+                .set_albedo_layer(&renderer.queue, layer, &texels)
+                .expect_err("refused");
+            assert!(error.to_string().contains("albedo layer"), "{error}");
+        }
 
         renderer
             .face

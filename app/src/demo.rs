@@ -27,7 +27,7 @@ use tracking::pipeline::{FrameOutput, TrackEvent, Tracker, TrackerConfig};
 use tracking::record::FrameRecord;
 use tracking::source::{Frame, FrameSource, Next};
 
-use crate::scene::{Scene, mesh_data, texture_layers};
+use crate::scene::{Scene, mesh_data, rgba8_texels, texture_layers};
 
 /// What the demo makes.
 #[derive(Clone, Debug)]
@@ -367,21 +367,6 @@ pub fn demo_motion(
     }
 }
 
-/// The renderer's albedo layers with the face layer replaced by `face_albedo`.
-pub fn layers_with_face(base: &TextureLayers, face_albedo: &UvMap) -> TextureLayers {
-    let mut layers = base.clone();
-    let face_layer = face::albedo::AlbedoLayer::Face.index();
-    if face_albedo.width as u32 == layers.width && face_albedo.height as u32 == layers.height {
-        let q = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
-        layers.layers[face_layer] = face_albedo
-            .data
-            .chunks_exact(3)
-            .map(|c| [q(c[0]), q(c[1]), q(c[2]), 255])
-            .collect();
-    }
-    layers
-}
-
 /// Renders the clip: the person's own blendshapes and albedo (equations 2 and 3 with the
 /// true corrections) under the scripted motion, on a flat studio backdrop.
 pub fn render_clip(
@@ -398,8 +383,7 @@ pub fn render_clip(
     )?;
     let mut frames = Vec::with_capacity(motion.weights.len());
     for k in 0..motion.weights.len() {
-        let params =
-            prepare_clip_frame(&mut renderer, scene, &textures, person, motion, config, k)?;
+        let params = prepare_clip_frame(&mut renderer, scene, person, motion, config, k)?;
         let rgba = renderer.render_image(config.width, config.height, &params)?;
         frames.push(image::DynamicImage::ImageRgba8(rgba).to_rgb8());
     }
@@ -411,7 +395,6 @@ pub fn render_clip(
 fn prepare_clip_frame(
     renderer: &mut OffscreenRenderer,
     scene: &Scene,
-    textures: &TextureLayers,
     person: &PersonalCorrections,
     motion: &DemoMotion,
     config: &DemoConfig,
@@ -422,9 +405,11 @@ fn prepare_clip_frame(
     };
     renderer.face.set_weights(&renderer.queue, &weights.0)?;
     let albedo = scene.model.albedo(scene.albedo.face(), person, weights)?;
+    // Only the face layer changes from frame to frame.
+    let face_layer = face::albedo::AlbedoLayer::Face.index() as u32;
     renderer
         .face
-        .set_albedo(&renderer.queue, &layers_with_face(textures, &albedo))?;
+        .set_albedo_layer(&renderer.queue, face_layer, &rgba8_texels(&albedo))?;
     let intrinsics = Intrinsics::from_fov(config.width, config.height, config.fov_deg);
     let mut params = FrameParams::new(Camera {
         view_from_model: pose.view_from_model(),
@@ -620,7 +605,6 @@ pub struct SteppedDemo {
     truth_blendshapes: PersonalizedBlendshapes,
     motion: DemoMotion,
     renderer: Option<OffscreenRenderer>,
-    textures: TextureLayers,
     /// Clip frames rendered so far, and whether the next one is being read back.
     rendered: Vec<RgbImage>,
     in_flight: bool,
@@ -661,7 +645,6 @@ impl SteppedDemo {
             truth_blendshapes,
             motion,
             renderer: Some(renderer),
-            textures,
             rendered: Vec::new(),
             in_flight: false,
             tracking: None,
@@ -710,7 +693,6 @@ impl SteppedDemo {
             let params = prepare_clip_frame(
                 renderer,
                 &self.scene,
-                &self.textures,
                 &self.truth,
                 &self.motion,
                 &self.config,

@@ -131,18 +131,18 @@ pub fn texture_layers(albedo: &MeanAlbedo) -> TextureLayers {
         height: face.height as u32,
         layers: AlbedoLayer::ALL
             .iter()
-            .map(|l| {
-                albedo.layers[l.index()]
-                    .data
-                    .chunks_exact(3)
-                    .map(|c| {
-                        let q = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
-                        [q(c[0]), q(c[1]), q(c[2]), 255]
-                    })
-                    .collect()
-            })
+            .map(|l| rgba8_texels(&albedo.layers[l.index()]))
             .collect(),
     }
+}
+
+/// An RGB albedo map (values in [0, 1]) as opaque 8-bit RGBA texels, row by row.
+pub fn rgba8_texels(map: &face::uv::UvMap) -> Vec<[u8; 4]> {
+    let q = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
+    map.data
+        .chunks_exact(3)
+        .map(|c| [q(c[0]), q(c[1]), q(c[2]), 255])
+        .collect()
 }
 
 /// What the 3D view shows.

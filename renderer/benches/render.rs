@@ -13,6 +13,11 @@
 //!
 //! Criterion reports each case; a table of the per-frame medians is printed at the end.
 //!
+//! A second group, `albedo_upload`, times what a clip with a per-frame albedo (equation 3)
+//! uploads each frame: the whole 6-layer 512x512 array (`set_albedo`) against its face
+//! layer alone (`set_albedo_layer`, what the demo clip does), each until the GPU has it,
+//! and prints the two medians and their ratio.
+//!
 //! Run: `XDG_RUNTIME_DIR=/tmp/xdg cargo bench -p renderer --bench render`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -136,5 +141,55 @@ fn bench(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench);
+fn albedo_upload(c: &mut Criterion) {
+    // The face template's layout: six 512 x 512 layers (face::albedo::ALBEDO_SIZE).
+    let checker = checker_albedo(512, 16);
+    let mut albedo = checker.clone();
+    albedo.layers = (0..6)
+        .map(|l| checker.layers[l % checker.layers.len()].clone())
+        .collect();
+    let mut r = OffscreenRenderer::new(&uv_sphere(16, 16, 1), &albedo).expect("renderer");
+    let mut group = c.benchmark_group("albedo_upload_6x512x512");
+    group.sample_size(20);
+    group.warm_up_time(Duration::from_secs(1));
+    group.measurement_time(Duration::from_secs(3));
+    let mut medians = Vec::new();
+    for whole in [true, false] {
+        let mut frames = Vec::new();
+        let name = if whole { "whole_array" } else { "face_layer" };
+        group.bench_function(name, |b| {
+            b.iter_custom(|iters| {
+                let start = Instant::now();
+                for _ in 0..iters {
+                    let t = Instant::now();
+                    if whole {
+                        r.face.set_albedo(&r.queue, &albedo).expect("albedo");
+                    } else {
+                        r.face
+                            .set_albedo_layer(&r.queue, 0, &albedo.layers[0])
+                            .expect("layer");
+                    }
+                    r.queue.submit([]);
+                    r.device
+                        .poll(wgpu::PollType::wait_indefinitely())
+                        .expect("poll");
+                    frames.push(t.elapsed());
+                }
+                start.elapsed()
+            })
+        });
+        medians.push(median_ms(&mut frames));
+    }
+    group.finish();
+    eprintln!("\nmedian ms per albedo upload (6 layers of 512x512, mips included):");
+    eprintln!("{:>12} {:>12} {:>8}", "whole array", "face layer", "ratio");
+    eprintln!(
+        "{:>12.2} {:>12.2} {:>7.1}x",
+        medians[0],
+        medians[1],
+        medians[0] / medians[1]
+    );
+}
+
+criterion_group!(benches, bench, albedo_upload);
 criterion_main!(benches);

@@ -734,6 +734,42 @@ impl FaceRenderer {
         Ok(())
     }
 
+    /// Replaces one layer of the albedo texture array with `texels` (RGBA, row by row, the
+    /// array's size): a clip whose face albedo changes every frame (equation 3's dynamic
+    /// albedo) uploads that layer alone, not the whole array through [`Self::set_albedo`].
+    pub fn set_albedo_layer(
+        &mut self,
+        queue: &wgpu::Queue,
+        layer: u32,
+        texels: &[[u8; 4]],
+    ) -> Result<(), RenderError> {
+        let size = self.albedo_texture.size();
+        if layer >= size.depth_or_array_layers {
+            return Err(RenderError::InvalidTexture(format!(
+                "albedo layer {layer} does not exist (the array has {})",
+                size.depth_or_array_layers
+            )));
+        }
+        let expected = size.width as usize * size.height as usize;
+        if texels.len() != expected {
+            return Err(RenderError::InvalidTexture(format!(
+                "albedo layer {layer} has {} texels, the {}x{} array needs {expected}",
+                texels.len(),
+                size.width,
+                size.height
+            )));
+        }
+        write_albedo_layer(
+            queue,
+            &self.albedo_texture,
+            (size.width, size.height),
+            layer,
+            texels,
+        );
+        self.content_stamp = new_content_stamp();
+        Ok(())
+    }
+
     /// Re-uploads positions, normals and deltas (e.g. new personal corrections). The
     /// topology (V, K, corners, indices, landmarks) must be unchanged.
     pub fn set_mesh_deltas(
@@ -1592,34 +1628,43 @@ fn albedo_texture_layers(albedo: &TextureLayers) -> u32 {
 
 fn write_albedo(queue: &wgpu::Queue, texture: &wgpu::Texture, albedo: &TextureLayers) {
     for (layer, texels) in albedo.layers.iter().enumerate() {
-        for (level, (w, h, data)) in mip_chain(albedo.width, albedo.height, texels)
-            .into_iter()
-            .enumerate()
-        {
-            queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture,
-                    mip_level: level as u32,
-                    origin: wgpu::Origin3d {
-                        x: 0,
-                        y: 0,
-                        z: layer as u32,
-                    },
-                    aspect: wgpu::TextureAspect::All,
+        let size = (albedo.width, albedo.height);
+        write_albedo_layer(queue, texture, size, layer as u32, texels);
+    }
+}
+
+/// Writes `texels` (`width` x `height`) and their mip chain to array layer `layer`.
+fn write_albedo_layer(
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    (width, height): (u32, u32),
+    layer: u32,
+    texels: &[[u8; 4]],
+) {
+    for (level, (w, h, data)) in mip_chain(width, height, texels).into_iter().enumerate() {
+        queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture,
+                mip_level: level as u32,
+                origin: wgpu::Origin3d {
+                    x: 0,
+                    y: 0,
+                    z: layer,
                 },
-                bytemuck::cast_slice(&data),
-                wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(w * 4),
-                    rows_per_image: Some(h),
-                },
-                wgpu::Extent3d {
-                    width: w,
-                    height: h,
-                    depth_or_array_layers: 1,
-                },
-            );
-        }
+                aspect: wgpu::TextureAspect::All,
+            },
+            bytemuck::cast_slice(&data),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(w * 4),
+                rows_per_image: Some(h),
+            },
+            wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+        );
     }
 }
 
