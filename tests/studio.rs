@@ -1219,3 +1219,39 @@ fn a_window_without_a_gpu_draws_lighter_shapes_unless_asked_not_to() {
     assert!(harness.ctx.tessellation_options(|o| o.feathering));
     assert_eq!(harness.state().current_settings().smooth_edges, Some(true));
 }
+
+#[test]
+fn a_hostile_puppet_dropped_on_the_studio_is_a_toast_and_the_studio_goes_on() {
+    let dir = std::env::temp_dir().join(format!("likeness-studio-hostile-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    // The smallest file that panicked the `gltf` crate: a POSITION attribute, no accessors.
+    let crash = dir.join("crash.gltf");
+    std::fs::write(
+        &crash,
+        br#"{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}]}"#,
+    )
+    .unwrap();
+    let mut harness = harness();
+    harness
+        .input_mut()
+        .dropped_files
+        .push(Arc::new(DroppedPath(crash)));
+    harness.run_steps(3);
+    let error = harness
+        .state()
+        .state
+        .notices
+        .latest_error()
+        .map(str::to_owned)
+        .expect("the bad puppet is reported");
+    assert!(
+        error.contains("crash.gltf") && error.contains("accessor"),
+        "{error}"
+    );
+    // The studio still draws and answers.
+    harness.get_by_label("Albedo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().state.view, StudioView::Albedo);
+    let _ = std::fs::remove_dir_all(&dir);
+}

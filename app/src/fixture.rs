@@ -215,9 +215,8 @@ pub fn export_fixture(model: &FaceModel, out_dir: &Path) -> Result<std::path::Pa
     std::fs::create_dir_all(out_dir)
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
     let path = out_dir.join(FIXTURE_FILE);
-    let tmp = out_dir.join(format!(".{FIXTURE_FILE}.tmp"));
-    safetensors::serialize_to_file(views, Some(meta), &tmp)
-        .with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+    let bytes = safetensors::serialize(views, Some(meta))
+        .with_context(|| format!("cannot encode {}", path.display()))?;
+    files::write_atomically(&path, &bytes)?;
     Ok(path)
 }

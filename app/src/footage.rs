@@ -91,7 +91,9 @@ mod native {
             threads: 1,
             ..TrackerConfig::default()
         };
-        let mut tracker = Tracker::new(face.clone(), config, spec.is_footage())
+        // Anything a user opens may be real footage: without the landmark models that is an
+        // error naming them, never every image silently taken as a face crop.
+        let mut tracker = Tracker::new(face.clone(), config, true)
             .context("tracking needs the networks and the OpenSeeFace models")?;
         let mut source = spec
             // Images have no frame rate of their own: they play at 30 fps.

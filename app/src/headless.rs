@@ -53,15 +53,14 @@ pub fn ensure_output_folder(path: &Path) -> Result<&Path> {
 /// Writes a PNG atomically (a temporary file beside it, then a rename), so a failed write
 /// never leaves a truncated image under the requested name.
 pub fn save_png(image: &image::RgbaImage, path: &Path) -> Result<()> {
-    let dir = ensure_output_folder(path)?;
-    let file_name = path
-        .file_name()
-        .with_context(|| format!("cannot write {}: not a file path", path.display()))?;
-    let tmp: PathBuf = dir.join(format!(".{}.tmp", file_name.to_string_lossy()));
-    image
-        .save_with_format(&tmp, image::ImageFormat::Png)
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
+    ensure_output_folder(path)?;
+    files::write_atomically_with(path, |file| {
+        let mut out = std::io::BufWriter::new(file);
+        image
+            .write_to(&mut out, image::ImageFormat::Png)
+            .map_err(std::io::Error::other)?;
+        std::io::Write::flush(&mut out)
+    })?;
     Ok(())
 }
 

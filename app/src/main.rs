@@ -78,6 +78,14 @@ enum Command {
     },
     /// Drive a glTF/GLB/VRM puppet with tracked motion and export the result. Prints the
     /// mapping report (what drives what, what is unmapped or ambiguous).
+    ///
+    /// Absurd values in the tracks are refused with the frame (JSON) or line (CSV) and the
+    /// field named: times must be finite, within 0 to 24 h (86,400 s), increasing, and at
+    /// least 0.0001 s apart as 32-bit floats (near 24 h: 1/128 s); weights must be finite
+    /// and within [-0.5, 1.5] (then clamped to [0, 1]); head angles within ±360 degrees
+    /// (±2π rad in a CSV); a `translation` within ±10,000 cm. Live Link timecodes must be
+    /// HH:MM:SS:FF.fff with FF below 60. An --out that is the tracks, the puppet or the
+    /// mapping file is refused.
     Retarget {
         /// Tracking JSON (`likeness track`, or any file with `arkit_names` and frames of
         /// `arkit_weights`) or a Live Link Face CSV.
@@ -107,10 +115,10 @@ enum Command {
         /// An image, a folder of images, a video file, `webcam[:DEVICE]`, or
         /// `ffmpeg:FORMAT:INPUT` (any FFmpeg input read live, e.g. ffmpeg:lavfi:testsrc2).
         input: String,
-        /// The tracking JSON to write.
+        /// The tracking JSON to write (not the input, nor the --csv file).
         #[arg(long)]
         out: PathBuf,
-        /// Also write a Live Link Face CSV.
+        /// Also write a Live Link Face CSV (not the input, nor the --out file).
         #[arg(long)]
         csv: Option<PathBuf>,
         #[command(flatten)]
@@ -189,12 +197,16 @@ struct TrackingArgs {
     /// keeps a core per stage; ModelNet, which runs alone, uses all cores.
     #[arg(long, default_value_t = 1)]
     threads: usize,
-    /// How faces are found: auto, landmarks (OpenSeeFace detection) or precropped (every
-    /// image is a face crop framed like the training images).
+    /// How faces are found: auto or landmarks (OpenSeeFace detection; a missing, mistyped
+    /// or broken --models folder is an error that says what it should hold), or
+    /// precropped (every image is taken as a face crop framed like the training images,
+    /// without the models; the output's settings say `"locator": "precropped"`).
     #[arg(long, default_value = "auto")]
     locator: String,
-    /// Folder of the OpenSeeFace models. Default: $LIKENESS_MODELS/openseeface, else
-    /// ../shared/models/openseeface beside the repository.
+    /// Folder of the OpenSeeFace models (mnv3_detection_opt.onnx and lm_model0_opt.onnx
+    /// for ONNX Runtime; the *_plain_b1.onnx rewrites for tract). Default:
+    /// $LIKENESS_MODELS/openseeface, else ../shared/models/openseeface beside the
+    /// repository.
     #[arg(long, value_name = "DIR")]
     models: Option<PathBuf>,
     /// Folder of Likeness's networks (manifest.json, track_net.onnx, model_net.onnx).
@@ -284,7 +296,8 @@ fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-                "likeness=info,face=info,renderer=info,wgpu=error,naga=error".into()
+                "likeness=info,face=info,renderer=info,tracking=warn,retarget=warn,wgpu=error,naga=error"
+                    .into()
             }),
         )
         .with_writer(std::io::stderr)
@@ -300,6 +313,7 @@ fn main() -> Result<()> {
         present: Present::Auto,
     });
     let load_scene = || Scene::load(cli.facemodel.as_deref());
+    refuse_overwriting_inputs(&command, cli.facemodel.as_deref())?;
     match command {
         Command::Retarget {
             tracks,
@@ -484,6 +498,58 @@ fn main() -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Refuses a command whose output file is one of its input files (checked as files, not
+/// by name: see `files::same_file`). `track` and `personalize` also check their
+/// footage, networks and models themselves; here every writing command is checked against
+/// the face template, and `retarget` against its tracks, puppet and mapping.
+fn refuse_overwriting_inputs(command: &Command, facemodel: Option<&std::path::Path>) -> Result<()> {
+    use likeness::track_cli::refuse_same_files;
+    let template = (
+        "the face template (--facemodel)".to_string(),
+        face::template::resolve_template_path(facemodel),
+    );
+    let fixture;
+    let outputs: Vec<(&str, &std::path::Path)> = match command {
+        Command::Retarget {
+            tracks,
+            puppet,
+            mapping,
+            out,
+        } => {
+            let mut inputs = vec![
+                ("--tracks".to_string(), tracks.clone()),
+                ("--puppet".to_string(), puppet.clone()),
+            ];
+            match mapping {
+                Some(m) => inputs.push(("--mapping".to_string(), m.clone())),
+                None => inputs.push((
+                    "the puppet's mapping file".to_string(),
+                    retarget::mapping::sidecar_path(puppet),
+                )),
+            }
+            return refuse_same_files(&inputs, &[("--out", out.as_path())]);
+        }
+        Command::Track { out, csv, .. } => {
+            let mut outputs = vec![("--out", out.as_path())];
+            outputs.extend(csv.as_deref().map(|c| ("--csv", c)));
+            outputs
+        }
+        Command::Personalize { out, .. } | Command::Screenshot { out, .. } => {
+            vec![("--out", out.as_path())]
+        }
+        Command::ExportFixture { out } => {
+            fixture = out.join(likeness::fixture::FIXTURE_FILE);
+            vec![("--out", fixture.as_path())]
+        }
+        // Folders of fixed PNG names, puppets made from code, or nothing written.
+        Command::Studio { .. }
+        | Command::Demo { .. }
+        | Command::GeneratePuppets { .. }
+        | Command::BenchStudio { .. } => Vec::new(),
+    };
+    refuse_same_files(&[template], &outputs)
 }
 
 fn report_written(paths: &[PathBuf]) {

@@ -13,9 +13,10 @@ use std::sync::Arc;
 use anyhow::{Context, Result, bail};
 use face::names::{ARKIT_NAMES, NUM_ARKIT, ict_to_arkit};
 use face::{PersonalCorrections, PersonalizedBlendshapes};
+use files::write_atomically;
 use renderer::{FaceRenderer, FrameParams};
 use retarget::export::{live_link_csv, retarget_clip, write_animation_glb};
-use retarget::mapping::{ChannelMapping, Source, sidecar_path, write_atomically};
+use retarget::mapping::{ChannelMapping, Source, sidecar_path};
 use retarget::rig::{PersonalizedRig, rig_glb_bytes};
 use retarget::{MappingData, Puppet, PuppetPose, Retargeter};
 

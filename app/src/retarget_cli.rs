@@ -4,10 +4,10 @@
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
+use files::write_atomically;
 use retarget::export::{
     clip_json, live_link_csv, parse_live_link_csv, retarget_clip, write_animation_glb,
 };
-use retarget::mapping::write_atomically;
 use retarget::{MappingData, Puppet, Retargeter, Tracks};
 
 /// Output formats, by file extension.

@@ -701,9 +701,7 @@ impl RonStorage {
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         }
-        let temporary = path.with_extension("ron.tmp");
-        std::fs::write(&temporary, text).map_err(|e| format!("{}: {e}", temporary.display()))?;
-        std::fs::rename(&temporary, path).map_err(|e| format!("{}: {e}", path.display()))
+        files::write_atomically(path, text.as_bytes()).map_err(|e| e.to_string())
     }
 }
 

@@ -26,6 +26,10 @@ use crate::demo::DemoSession;
 /// [`StudioSession::source`] of the built-in demo.
 pub const DEMO_SOURCE: &str = "built-in demo";
 
+/// Sessions without footage (`likeness personalize`) show grey frames of the camera's size
+/// in its place; more bytes of them than this are refused, not allocated.
+pub const MAX_PLACEHOLDER_BYTES: u64 = 2 << 30;
+
 /// One person's session in the studio.
 pub struct StudioSession {
     /// Where the footage came from (file, folder, "built-in demo").
@@ -178,6 +182,8 @@ impl StudioSession {
         if camera.width == 0 || camera.height == 0 {
             return Err("the session's camera has no size".into());
         }
+        tracking::source::check_frame_size(camera.width, camera.height)
+            .map_err(|e| format!("the session's camera: {e}"))?;
         if ![camera.focal_px, camera.cx, camera.cy]
             .iter()
             .all(|v| v.is_finite())
@@ -196,20 +202,32 @@ impl StudioSession {
             }
             Some(_) => return Err("the footage is not the size of the session's camera".into()),
             None => {
+                let bytes = u64::from(camera.width) * u64::from(camera.height) * 3 * count as u64;
+                if bytes > MAX_PLACEHOLDER_BYTES {
+                    return Err(format!(
+                        "the session has no footage, and grey frames in its place ({count} of \
+                         {}x{}) would take {:.1} GB, more than the {} GB the studio allows them",
+                        camera.width,
+                        camera.height,
+                        bytes as f64 / 1e9,
+                        MAX_PLACEHOLDER_BYTES >> 30
+                    ));
+                }
                 let grey = RgbImage::from_pixel(camera.width, camera.height, image::Rgb([96; 3]));
                 vec![grey; count]
             }
         };
-        let blendshapes = Arc::new(
-            model
-                .personalize(&file.corrections)
-                .map_err(|e| format!("the personal corrections: {e}"))?,
-        );
         let observations = if file.observations.len() == count {
             file.observations
         } else {
             vec![FrameObservations::default(); count]
         };
+        // Last: the file's own data is checked before the model is built from it.
+        let blendshapes = Arc::new(
+            model
+                .personalize(&file.corrections)
+                .map_err(|e| format!("the personal corrections: {e}"))?,
+        );
         let correction_mm = correction_sizes_mm(model, &blendshapes);
         Ok(Self {
             source: file.info.source,
@@ -352,4 +370,84 @@ pub fn correction_sizes_mm(
             .fold(0.0f32, f32::max)
             * 10.0
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use face::template::{Part, Template};
+    use glam::Vec3;
+
+    /// A face model on a four-vertex template: `from_file` needs a model, not the ICT
+    /// FaceKit's 26k vertices.
+    fn tiny_model() -> FaceModel {
+        let quad = [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]];
+        FaceModel::new(Template {
+            neutral: quad.iter().map(|[x, y]| Vec3::new(*x, *y, 0.0)).collect(),
+            expression_deltas: vec![Vec3::new(0.0, 0.01, 0.0); NUM_BLENDSHAPES * 4],
+            identity_deltas: Vec::new(),
+            identity_count: 0,
+            uvs: quad
+                .iter()
+                .map(|[x, y]| Vec2::new(0.5 + 0.4 * x, 0.5 + 0.4 * y))
+                .collect(),
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            triangle_uvs: vec![[0, 1, 2], [0, 2, 3]],
+            triangle_polygon: vec![0, 0],
+            parts: vec![Part {
+                name: "face".into(),
+                vertices: 0..4,
+                polygons: 0..1,
+            }],
+            materials: Vec::new(),
+            landmarks_68: [0; face::NUM_LANDMARKS],
+            source: "tiny".into(),
+        })
+    }
+
+    /// A `likeness personalize` session (no footage) of `count` frames of `width` x
+    /// `height`.
+    fn file(width: u32, height: u32, count: usize) -> Session {
+        let mut tracks = TracksDocument::new("clip.mp4".into(), 30.0);
+        tracks.camera = Some(CameraRecord {
+            width,
+            height,
+            focal_px: 500.0,
+            cx: width as f32 / 2.0,
+            cy: height as f32 / 2.0,
+        });
+        tracks.frames = (0..count)
+            .map(|k| FrameRecord::no_face(k, k as f64 / 30.0, None))
+            .collect();
+        Session {
+            info: SessionInfo::default(),
+            corrections: PersonalCorrections::zeros(),
+            tracks,
+            footage: None,
+            observations: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_session_without_footage_shows_grey_frames_of_its_camera() {
+        let session = StudioSession::from_file(&tiny_model(), file(8, 6, 3)).expect("loads");
+        assert_eq!(session.frame_count(), 3);
+        assert!(session.frames.iter().all(|f| f.dimensions() == (8, 6)));
+    }
+
+    /// Found by the session fuzz target (fuzz/regressions/session/): grey frames for a
+    /// camera of any size were allocated, and a file with a 100000 x 100000 camera, or
+    /// 200 frames of 50 megapixels, ended the studio on an allocation failure.
+    #[test]
+    fn cameras_and_grey_footage_beyond_the_limits_are_refused_not_allocated() {
+        let model = tiny_model();
+        let e = StudioSession::from_file(&model, file(100_000, 100_000, 2))
+            .err()
+            .expect("a 100000 x 100000 camera");
+        assert!(e.contains("camera") && e.contains("at most"), "{e}");
+        let e = StudioSession::from_file(&model, file(8_000, 6_000, 200))
+            .err()
+            .expect("200 frames of 48 megapixels");
+        assert!(e.contains("no footage") && e.contains("GB"), "{e}");
+    }
 }

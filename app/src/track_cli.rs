@@ -9,9 +9,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result, bail};
 use face::FaceModel;
+use files::write_atomically;
 use indicatif::{ProgressBar, ProgressStyle};
+use tracking::backend::BackendKind;
 use tracking::pipeline::{FrameOutput, TrackEvent, Tracker, TrackerConfig};
-use tracking::record::{FrameRecord, TracksDocument, write_atomically};
+use tracking::record::{FrameRecord, TracksDocument};
 use tracking::session::{Session, SessionInfo};
 use tracking::source::InputSpec;
 
@@ -131,14 +133,16 @@ pub fn run_track(
     options: TrackOptions,
 ) -> Result<()> {
     check_output(out)?;
+    let mut outputs = vec![("--out", out)];
     if let Some(csv) = csv {
         check_output(csv)?;
+        outputs.push(("--csv", csv));
     }
+    refuse_same_files(&tracking_inputs(&[input], &options.config), &outputs)?;
     install_ctrl_c();
-    let footage = InputSpec::parse(input)
-        .map(|s| s.is_footage())
-        .unwrap_or(false);
-    let mut tracker = Tracker::new(face, options.config.clone(), footage)?;
+    // `auto` never takes frames as face crops by itself: without the OpenSeeFace models it
+    // is an error that says where they were looked for and how to pick `precropped`.
+    let mut tracker = Tracker::new(face, options.config.clone(), true)?;
     let (mut doc, _, _) = track_input(&mut tracker, input, &options, false)?;
     doc.settings = settings_json(&tracker, &options);
     doc.save(out)?;
@@ -168,11 +172,11 @@ pub fn run_personalize(
     if inputs.is_empty() {
         bail!("personalize needs at least one input");
     }
+    let named: Vec<&str> = inputs.iter().map(String::as_str).collect();
+    refuse_same_files(&tracking_inputs(&named, &options.config), &[("--out", out)])?;
     install_ctrl_c();
-    let footage = inputs
-        .iter()
-        .any(|i| InputSpec::parse(i).map(|s| s.is_footage()).unwrap_or(false));
-    let mut tracker = Tracker::new(face.clone(), options.config.clone(), footage)?;
+    // As for `track`: `auto` without the landmark models is an error, never a silent crop.
+    let mut tracker = Tracker::new(face.clone(), options.config.clone(), true)?;
     let mut docs = Vec::new();
     for input in inputs {
         let (doc, outputs, size) = track_input(&mut tracker, input, &options, true)?;
@@ -284,6 +288,93 @@ fn report(doc: &TracksDocument, out: &Path) {
         doc.frames.len(),
         faces
     );
+}
+
+/// The files `track` and `personalize` read: the footage named by `inputs` (a file, or a
+/// folder whose images are read; live inputs name no file unless they are one) and the
+/// network and landmark model files. (`main` adds the face template.)
+pub fn tracking_inputs(inputs: &[&str], config: &TrackerConfig) -> Vec<(String, PathBuf)> {
+    let mut paths = Vec::new();
+    for input in inputs {
+        let path = match InputSpec::parse(input) {
+            Ok(InputSpec::Image(p) | InputSpec::Folder(p) | InputSpec::Video(p)) => p,
+            Ok(InputSpec::Webcam(device)) => PathBuf::from(device),
+            Ok(InputSpec::FfmpegLive { input, .. }) => PathBuf::from(input),
+            // Reading it fails later with its own message.
+            Err(_) => continue,
+        };
+        paths.push((format!("the input {input}"), path));
+    }
+    for name in ["manifest.json", "track_net.onnx", "model_net.onnx"] {
+        paths.push((
+            format!("the network file {name}"),
+            config.networks_dir.join(name),
+        ));
+    }
+    for kind in [BackendKind::OnnxRuntime, BackendKind::Tract] {
+        let (detector, landmarks) = tracking::openseeface::model_files(&config.models_dir, kind);
+        paths.push(("the OpenSeeFace detector".into(), detector));
+        paths.push(("the OpenSeeFace landmark model".into(), landmarks));
+    }
+    paths
+}
+
+/// Refuses an output that is one of the `inputs` or another output, named by the option
+/// or role given with it. Paths are compared as files (see [`files::same_file`]), so a relative
+/// path, a symbolic link or a hard link to an input is caught. An output that would land
+/// among the images of an input folder under an image's name is refused too.
+pub fn refuse_same_files<I, O>(inputs: &[(I, PathBuf)], outputs: &[(O, &Path)]) -> Result<()>
+where
+    I: AsRef<str>,
+    O: AsRef<str>,
+{
+    for (k, (out_role, out)) in outputs.iter().enumerate() {
+        let out_role = out_role.as_ref();
+        for (in_role, input) in inputs {
+            let in_role = in_role.as_ref();
+            if files::same_file(out, input) {
+                bail!(
+                    "{out_role} {} is the same file as {in_role} ({}): writing it would destroy \
+                     what is read; choose another output file",
+                    out.display(),
+                    input.display()
+                );
+            }
+            let in_folder = input.is_dir()
+                && tracking::source::is_image_path(out)
+                && out.exists()
+                && out.parent().is_some_and(|dir| {
+                    files::same_file(
+                        if dir.as_os_str().is_empty() {
+                            Path::new(".")
+                        } else {
+                            dir
+                        },
+                        input,
+                    )
+                });
+            if in_folder {
+                bail!(
+                    "{out_role} {} is one of the images of {in_role} ({}): writing it would \
+                     destroy a frame; choose another output file",
+                    out.display(),
+                    input.display()
+                );
+            }
+        }
+        for (other_role, other) in &outputs[k + 1..] {
+            if files::same_file(out, other) {
+                bail!(
+                    "{out_role} {} and {} {} are the same file: one would overwrite the \
+                     other; give them different names",
+                    out.display(),
+                    other_role.as_ref(),
+                    other.display()
+                );
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Parses `--fov`.

@@ -29,6 +29,9 @@ pub enum FaceError {
         "unknown blendshape name `{0}` (expected one of the 53 ICT names or the 52 ARKit names)"
     )]
     UnknownBlendshape(String),
+
+    #[error(transparent)]
+    Write(#[from] files::WriteError),
 }
 
 pub type Result<T, E = FaceError> = std::result::Result<T, E>;

@@ -546,15 +546,13 @@ fn parse_corner(
 
 fn write_file(
     path: &Path,
-    body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+    body: impl FnOnce(&mut BufWriter<&mut File>) -> std::io::Result<()>,
 ) -> Result<()> {
-    let io_error = |source| FaceError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut out = BufWriter::new(File::create(path).map_err(io_error)?);
-    body(&mut out).map_err(io_error)?;
-    out.flush().map_err(io_error)
+    Ok(files::write_atomically_with(path, |file| {
+        let mut out = BufWriter::new(file);
+        body(&mut out)?;
+        out.flush()
+    })?)
 }
 
 /// Writes positions with Rust's shortest round-trip float formatting, so a re-import

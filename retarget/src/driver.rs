@@ -51,6 +51,9 @@ pub struct MappingReport {
     pub unresolved: Vec<String>,
     /// VRM expressions not used because their morph targets are driven directly.
     pub skipped_expressions: Vec<String>,
+    /// VRM expressions that move nothing (no morph target bind with a weight), so nothing
+    /// is mapped to them.
+    pub empty_expressions: Vec<String>,
     /// The node head rotation drives, if any.
     pub head_node: Option<String>,
 }
@@ -82,6 +85,11 @@ impl fmt::Display for MappingReport {
             f,
             "VRM expressions skipped (their morph targets are driven directly)",
             &self.skipped_expressions,
+        )?;
+        list(
+            f,
+            "VRM expressions moving nothing (no morph target binds)",
+            &self.empty_expressions,
         )?;
         match &self.head_node {
             Some(n) => writeln!(f, "head rotation drives node `{n}`"),
@@ -155,7 +163,16 @@ impl Retargeter {
                 }
             }
         }
+        let moves_something = |e: &VrmExpression| e.binds.iter().any(|b| b.weight != 0.0);
+        for e in &expressions {
+            if !moves_something(e) && e.preset != Some(VrmPreset::Neutral) {
+                report.empty_expressions.push(e.name.clone());
+            }
+        }
         for (k, e) in expressions.iter().enumerate() {
+            if !moves_something(e) {
+                continue;
+            }
             let source = arkit_channel(&e.name).map(Source::Arkit).or_else(|| {
                 e.preset
                     .filter(|p| *p != VrmPreset::Neutral)
@@ -197,7 +214,11 @@ impl Retargeter {
             } else {
                 let mut found = Vec::new();
                 for name in &entry.targets {
-                    let resolved = resolve_target(puppet, &expressions, name);
+                    let mut resolved = resolve_target(puppet, &expressions, name);
+                    resolved.retain(|t| match *t {
+                        Target::Expression(k) => moves_something(&expressions[k]),
+                        Target::Morph { .. } => true,
+                    });
                     if resolved.is_empty() {
                         report
                             .unresolved
@@ -281,6 +302,7 @@ impl Retargeter {
         for (k, e) in expressions.iter().enumerate() {
             if !expression_driven[k]
                 && !report.skipped_expressions.contains(&e.name)
+                && !report.empty_expressions.contains(&e.name)
                 && e.preset != Some(VrmPreset::Neutral)
             {
                 report.unmapped_targets.push(format!("vrm:{}", e.name));
@@ -300,7 +322,7 @@ impl Retargeter {
         let head_rest = head_node.map_or((Quat::IDENTITY, Quat::IDENTITY), |h| {
             let parent_world = puppet.nodes[h].parent.map_or(Quat::IDENTITY, |p| {
                 let (_, r, _) = puppet.world_matrices(&[])[p].to_scale_rotation_translation();
-                r
+                if r.is_finite() { r } else { Quat::IDENTITY }
             });
             (puppet.nodes[h].rotation, parent_world)
         });
@@ -440,7 +462,14 @@ impl Retargeter {
         );
         let r = Quat::from_mat3(&face::camera::euler_to_matrix(euler));
         let (rest_local, parent_world) = self.head_rest;
-        (parent_world.inverse() * r * parent_world * rest_local).normalize()
+        let turned = (parent_world.inverse() * r * parent_world * rest_local).normalize();
+        // Degenerate node transforms (a zero scale) have no rotation to turn in: the head
+        // stays at rest rather than becoming NaN.
+        if turned.is_finite() {
+            turned
+        } else {
+            rest_local
+        }
     }
 }
 

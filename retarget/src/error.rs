@@ -36,6 +36,9 @@ pub enum RetargetError {
 
     #[error(transparent)]
     Face(#[from] face::FaceError),
+
+    #[error(transparent)]
+    File(#[from] files::WriteError),
 }
 
 pub type Result<T, E = RetargetError> = std::result::Result<T, E>;

@@ -14,9 +14,11 @@ use serde_json::{Value, json};
 use crate::driver::{PuppetPose, Retargeter};
 use crate::error::{Result, RetargetError, io_error};
 use crate::glb::GlbBuilder;
-use crate::mapping::write_atomically;
 use crate::names::live_link_name;
-use crate::puppet::{Puppet, split_gltf};
+use crate::puppet::{
+    ImageSource, LazyFolder, Puppet, decode_image, image_bytes, image_source, load_buffers,
+    split_gltf,
+};
 use crate::tracks::Tracks;
 
 /// One retargeted frame.
@@ -61,7 +63,7 @@ pub fn write_animation_glb(
     let source = &puppet.path;
     let bytes = std::fs::read(source).map_err(io_error(source))?;
     let data = animation_glb_bytes(&bytes, source.parent(), puppet, retargeter, clip, out)?;
-    write_atomically(out, &data)
+    Ok(files::write_atomically(out, &data)?)
 }
 
 /// [`write_animation_glb`]'s file as bytes, from the puppet file's `bytes` (what a browser
@@ -79,17 +81,46 @@ pub fn animation_glb_bytes(
         return Err(write_err(out, "the clip has no frames with a face"));
     }
     let source = &puppet.path;
-    let mut raw = split_gltf(bytes, source)?.json;
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| RetargetError::InvalidPuppet {
+    let bad = |reason: String| RetargetError::InvalidPuppet {
         path: source.clone(),
-        reason: format!("invalid glTF: {e}"),
-    })?;
-    let buffers = gltf::import_buffers(&gltf.document, base, gltf.blob).map_err(|e| {
-        RetargetError::InvalidPuppet {
-            path: source.clone(),
-            reason: format!("cannot read its buffers: {e}"),
-        }
-    })?;
+        reason,
+    };
+    let mut raw = split_gltf(bytes, source)?.json;
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| bad(format!("invalid glTF: {e}")))?;
+    let folder = LazyFolder::new(base);
+    let buffers = load_buffers(&gltf.document, &folder, gltf.blob).map_err(bad)?;
+    // What an external image becomes: its decoded-and-checked bytes, or nothing.
+    let images = raw
+        .get("images")
+        .and_then(Value::as_array)
+        .cloned()
+        .unwrap_or_default();
+    let referenced = referenced_images(&raw);
+    let mut embedded: Vec<Option<Vec<u8>>> = Vec::with_capacity(images.len());
+    for (k, image) in images.iter().enumerate() {
+        let what = format!("image {k}");
+        let Ok(ImageSource::File(uri)) = image_source(image) else {
+            embedded.push(None); // in the file already (buffer view or data URI)
+            continue;
+        };
+        // A file beside the puppet travels only if a texture shows it and it is an image.
+        let bytes = if referenced.contains(&k) {
+            image_bytes(&ImageSource::File(uri), &raw, &buffers, &folder, &what).and_then(|b| {
+                decode_image(&b)
+                    .map(|_| b)
+                    .map_err(|e| format!("{what}: {e}"))
+            })
+        } else {
+            Err(format!("{what} (`{uri}`) is not used by any texture"))
+        };
+        embedded.push(Some(bytes.unwrap_or_else(|reason| {
+            tracing::warn!(
+                "{}: {reason}; the export carries a 1x1 white image in its place",
+                source.display()
+            );
+            placeholder_png()
+        })));
+    }
 
     // Pack every buffer into one, 4-byte aligned.
     let mut bin: Vec<u8> = Vec::new();
@@ -111,38 +142,21 @@ pub fn animation_glb_bytes(
         view["buffer"] = json!(0);
         view["byteOffset"] = json!(base_offset + offset);
     }
+    if let Some(list) = raw.get_mut("buffers").and_then(Value::as_array_mut) {
+        list.clear();
+    }
+    // Exporting an exported file replaces its animation instead of adding a second one.
+    if let Some(list) = raw.get_mut("animations").and_then(Value::as_array_mut) {
+        list.retain(|a| a.get("name").and_then(Value::as_str) != Some(ANIMATION_NAME));
+    }
     let mut doc = GlbBuilder::new(raw, bin);
     // External images move into the binary chunk (their files would not travel with the GLB).
-    let image_count = doc
-        .json
-        .get("images")
-        .and_then(Value::as_array)
-        .map_or(0, Vec::len);
-    for k in 0..image_count {
-        let Some(uri) = doc.json["images"][k]
-            .get("uri")
-            .and_then(Value::as_str)
-            .map(str::to_owned)
-        else {
-            continue;
-        };
-        if uri.starts_with("data:") {
-            continue; // valid in a GLB as it is
-        }
-        let Some(dir) = base else { continue };
-        let file = dir.join(percent_decode(&uri));
-        let data = std::fs::read(&file).map_err(io_error(&file))?;
-        let mime = match file
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase)
-            .as_deref()
-        {
-            Some("png") => "image/png",
-            Some("jpg" | "jpeg") => "image/jpeg",
-            Some("webp") => "image/webp",
-            Some("ktx2") => "image/ktx2",
-            _ => "application/octet-stream",
+    for (k, data) in embedded.into_iter().enumerate() {
+        let Some(data) = data else { continue };
+        let mime = if data.starts_with(b"\x89PNG") {
+            "image/png"
+        } else {
+            "image/jpeg"
         };
         let view = doc.view(&data, None);
         let image = &mut doc.json["images"][k];
@@ -153,8 +167,31 @@ pub fn animation_glb_bytes(
         image["mimeType"] = json!(mime);
     }
 
-    // The animation: one sampler input shared by every channel.
+    // The animation: one sampler input shared by every channel. Files were checked when
+    // read (`Tracks::parse`); tracks made in code are checked here, as glTF requires
+    // finite, strictly increasing times.
     let times: Vec<f32> = clip.iter().map(|f| f.time_s - clip[0].time_s).collect();
+    if let Some(k) = (0..times.len()).find(|&k| {
+        !times[k].is_finite() || !clip[k].time_s.is_finite() || (k > 0 && times[k] <= times[k - 1])
+    }) {
+        return Err(write_err(
+            out,
+            format!(
+                "frame {k} of the clip has time {} s, not a finite time after the frame before; glTF animations need increasing times",
+                clip[k].time_s
+            ),
+        ));
+    }
+    let finite_pose = |f: &ClipFrame| {
+        f.pose.morph_weights.iter().flatten().all(|w| w.is_finite())
+            && f.pose.head.is_none_or(|(_, q)| q.is_finite())
+    };
+    if let Some(k) = clip.iter().position(|f| !finite_pose(f)) {
+        return Err(write_err(
+            out,
+            format!("frame {k} of the clip has a weight or head rotation that is not finite"),
+        ));
+    }
     let input = doc.float_accessor(&times, "SCALAR", None, true);
     let mut samplers = Vec::new();
     let mut channels = Vec::new();
@@ -199,25 +236,48 @@ pub fn animation_glb_bytes(
     doc.finish().map_err(|e| write_err(out, e))
 }
 
-/// `%20` -> space in relative URIs (glTF URIs are percent-encoded).
-fn percent_decode(uri: &str) -> String {
-    let bytes = uri.as_bytes();
-    let hex = |b: u8| (b as char).to_digit(16);
-    let mut out = Vec::with_capacity(bytes.len());
-    let mut i = 0;
-    while i < bytes.len() {
-        if bytes[i] == b'%'
-            && i + 2 < bytes.len()
-            && let (Some(hi), Some(lo)) = (hex(bytes[i + 1]), hex(bytes[i + 2]))
-        {
-            out.push((hi * 16 + lo) as u8);
-            i += 3;
-            continue;
+/// Images a texture shows (its `source` or an extension's, e.g. `KHR_texture_basisu`), or
+/// that the VRM extension names (thumbnails).
+fn referenced_images(json: &Value) -> Vec<usize> {
+    let mut found = Vec::new();
+    let textures = json.get("textures").and_then(Value::as_array);
+    for texture in textures.into_iter().flatten() {
+        found.extend(texture.get("source").and_then(Value::as_u64));
+        let extensions = texture.get("extensions").and_then(Value::as_object);
+        for ext in extensions.into_iter().flat_map(|e| e.values()) {
+            found.extend(ext.get("source").and_then(Value::as_u64));
         }
-        out.push(bytes[i]);
-        i += 1;
     }
-    String::from_utf8_lossy(&out).into_owned()
+    let extensions = json.get("extensions");
+    found.extend(
+        extensions
+            .and_then(|e| e.pointer("/VRMC_vrm/meta/thumbnailImage"))
+            .and_then(Value::as_u64),
+    );
+    // VRM 0.x names a texture for its thumbnail.
+    if let Some(t) = extensions
+        .and_then(|e| e.pointer("/VRM/meta/texture"))
+        .and_then(Value::as_u64)
+        && let Some(source) = json
+            .pointer(&format!("/textures/{t}/source"))
+            .and_then(Value::as_u64)
+    {
+        found.push(source);
+    }
+    found.into_iter().map(|i| i as usize).collect()
+}
+
+/// A 1x1 white PNG, what an image that may not travel becomes (the JSON keeps its index, so
+/// nothing that refers to images needs renumbering).
+fn placeholder_png() -> Vec<u8> {
+    let mut bytes = Vec::new();
+    let pixel = image::RgbaImage::from_pixel(1, 1, image::Rgba([255, 255, 255, 255]));
+    // Encoding one pixel into memory cannot fail.
+    let _ = pixel.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    );
+    bytes
 }
 
 // --- Live Link Face CSV ----------------------------------------------------------------
@@ -320,8 +380,12 @@ fn live_link_csv_with(
 }
 
 /// Reads a Live Link Face CSV back into ARKit weights and head angles (degrees), for tests
-/// and for using LLF recordings as tracks.
+/// and for using LLF recordings as tracks. Values are held to the rules of tracking JSON
+/// (`tracks` module): blendshape columns within [-0.5, 1.5] (clamped to [0, 1]), head
+/// angles within ±2π rad, timecodes `HH:MM:SS:FF.fff` (frames at [`LIVE_LINK_FPS`])
+/// increasing within 24 h. Errors name the line (the header is line 1) and the column.
 pub fn parse_live_link_csv(text: &str) -> std::result::Result<Tracks, String> {
+    use crate::tracks::{TimeChecker, checked_angle_rad, checked_weight};
     let mut lines = text.lines();
     let header: Vec<&str> = lines
         .next()
@@ -332,39 +396,64 @@ pub fn parse_live_link_csv(text: &str) -> std::result::Result<Tracks, String> {
     let col = |name: &str| header.iter().position(|h| h.eq_ignore_ascii_case(name));
     let time_col = col("Timecode").ok_or("no Timecode column")?;
     let shape_cols: Vec<Option<usize>> = (0..NUM_ARKIT).map(|a| col(&live_link_name(a))).collect();
+    if shape_cols.iter().all(Option::is_none) {
+        return Err(
+            "the header has no blendshape column (EyeBlinkLeft, ..., TongueOut): not a Live \
+             Link Face CSV"
+                .into(),
+        );
+    }
     let head_cols = [col("HeadYaw"), col("HeadPitch"), col("HeadRoll")];
     let mut tracks = Tracks::default();
+    let mut times = TimeChecker::new();
     for (k, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+        let line_no = k + 2;
         let cells: Vec<&str> = line.split(',').map(str::trim).collect();
-        let number = |c: usize| -> std::result::Result<f32, String> {
-            let v: f32 = cells
-                .get(c)
-                .ok_or(format!("row {k}: too few columns"))?
-                .parse()
-                .map_err(|e| format!("row {k} column {c}: {e}"))?;
-            if v.is_finite() {
-                Ok(v)
-            } else {
-                Err(format!("row {k} column {c}: not finite"))
-            }
+        let cell = |c: usize| -> std::result::Result<&str, String> {
+            cells.get(c).copied().ok_or_else(|| {
+                format!(
+                    "line {line_no}: {} cells, so no column {} (`{}`)",
+                    cells.len(),
+                    c + 1,
+                    header[c]
+                )
+            })
+        };
+        let number = |c: usize| -> std::result::Result<f64, String> {
+            let text = cell(c)?;
+            text.parse().map_err(|_| {
+                format!(
+                    "line {line_no}, column `{}`: `{text}` is not a number",
+                    header[c]
+                )
+            })
         };
         let mut arkit = [0.0; NUM_ARKIT];
         for (a, c) in shape_cols.iter().enumerate() {
-            if let Some(c) = c {
-                arkit[a] = number(*c)?.clamp(0.0, 1.0);
+            if let Some(c) = *c {
+                arkit[a] = checked_weight(number(c)?)
+                    .map_err(|e| format!("line {line_no}, column `{}`: {e}", header[c]))?;
             }
         }
-        let rotation_deg = if head_cols.iter().all(Option::is_some) {
-            let mut r = [0.0; 3];
-            for (slot, c) in r.iter_mut().zip(head_cols) {
-                *slot = number(c.unwrap_or_default())?.to_degrees();
+        let rotation_deg = match head_cols {
+            [Some(yaw), Some(pitch), Some(roll)] => {
+                let mut deg = [0.0; 3];
+                for (slot, c) in deg.iter_mut().zip([yaw, pitch, roll]) {
+                    *slot = checked_angle_rad(number(c)?)
+                        .map_err(|e| format!("line {line_no}, column `{}`: {e}", header[c]))?;
+                }
+                Some(deg)
             }
-            Some(r)
-        } else {
-            None
+            _ => None,
         };
-        let time_s = parse_timecode(cells.get(time_col).ok_or(format!("row {k}: no timecode"))?)
-            .ok_or(format!("row {k}: bad timecode"))?;
+        let stamp = cell(time_col)?;
+        let t =
+            parse_timecode(stamp).map_err(|e| format!("line {line_no}: Timecode `{stamp}` {e}"))?;
+        let time_s = times.check(
+            &format!("line {line_no}"),
+            &format!("Timecode `{stamp}`"),
+            t,
+        )?;
         tracks.frames.push(crate::tracks::TrackedFrame {
             time_s,
             arkit,
@@ -374,15 +463,36 @@ pub fn parse_live_link_csv(text: &str) -> std::result::Result<Tracks, String> {
     Ok(tracks)
 }
 
-fn parse_timecode(text: &str) -> Option<f32> {
+/// `HH:MM:SS:FF.fff` (frames at [`LIVE_LINK_FPS`]) in seconds, or what is wrong with it.
+/// Hours are not limited here: the tracks' 24 h bound refuses a time beyond it.
+fn parse_timecode(text: &str) -> std::result::Result<f64, String> {
     let parts: Vec<&str> = text.split(':').collect();
     let [h, m, s, f] = parts.as_slice() else {
-        return None;
+        return Err("is not HH:MM:SS:FF.fff".into());
     };
-    let frames: f64 = f.parse().ok()?;
-    let secs =
-        h.parse::<f64>().ok()? * 3600.0 + m.parse::<f64>().ok()? * 60.0 + s.parse::<f64>().ok()?;
-    Some((secs + frames / f64::from(LIVE_LINK_FPS)) as f32)
+    let whole = |part: &str, what: &str, below: u32| -> std::result::Result<f64, String> {
+        let digits =
+            !part.is_empty() && part.len() <= 9 && part.bytes().all(|b| b.is_ascii_digit());
+        match part.parse::<u32>() {
+            Ok(v) if digits && v < below => Ok(f64::from(v)),
+            Ok(v) if digits => Err(format!("has {v} {what} (at most {})", below - 1)),
+            _ => Err(format!("has `{part}` for {what}, not a whole number")),
+        }
+    };
+    let secs = whole(h, "hours", u32::MAX)? * 3600.0
+        + whole(m, "minutes", 60)? * 60.0
+        + whole(s, "seconds", 60)?;
+    let frames: f64 = f
+        .parse()
+        .map_err(|_| format!("has `{f}` for frames, not a number"))?;
+    let fps = f64::from(LIVE_LINK_FPS);
+    if !frames.is_finite() {
+        return Err(format!("has `{f}` for frames, not a finite number"));
+    }
+    if !(0.0..fps).contains(&frames) {
+        return Err(format!("has {frames} frames (from 0 to under {fps})"));
+    }
+    Ok(secs + frames / fps)
 }
 
 // --- JSON ------------------------------------------------------------------------------

@@ -23,7 +23,6 @@ use serde_json::json;
 
 use crate::error::{Result, RetargetError};
 use crate::glb::{ARRAY_BUFFER, GlbBuilder};
-use crate::mapping::write_atomically;
 use crate::names::live_link_name;
 
 /// How a style names its morph targets in the file.
@@ -630,7 +629,7 @@ pub fn write_all(dir: &Path) -> Result<Vec<std::path::PathBuf>> {
             path: path.clone(),
             reason,
         })?;
-        write_atomically(&path, &bytes)?;
+        files::write_atomically(&path, &bytes)?;
         written.push(path);
     }
     Ok(written)

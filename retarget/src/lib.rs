@@ -11,6 +11,7 @@
 //! loads; the studio wires them), and it never panics on a file from outside: every
 //! malformed input is a [`RetargetError`] naming the file and the problem.
 
+pub mod accessor;
 pub mod driver;
 pub mod error;
 pub mod export;
@@ -21,6 +22,7 @@ pub mod names;
 pub mod puppet;
 pub mod rig;
 pub mod tracks;
+pub mod uri;
 pub mod vrm;
 
 pub use driver::{MappingReport, PuppetPose, Retargeter};

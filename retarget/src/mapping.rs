@@ -197,6 +197,10 @@ impl Source {
     }
 }
 
+/// `head.gain` beyond this is refused: ten times the performer's turn is already
+/// cartoonish, and larger products of gain and angle lose all precision.
+pub const MAX_HEAD_GAIN: f32 = 10.0;
+
 impl MappingData {
     /// Checks every number and name; the error says which entry is wrong.
     pub fn validate(&self, path: &Path) -> Result<()> {
@@ -253,8 +257,11 @@ impl MappingData {
                 return Err(bad(format!("neutral: `{name}` = {v} is outside [0, 1]")));
             }
         }
-        if !self.head.gain.is_finite() {
-            return Err(bad("head.gain is not a finite number".into()));
+        if !(self.head.gain.is_finite() && self.head.gain.abs() <= MAX_HEAD_GAIN) {
+            return Err(bad(format!(
+                "head.gain {} is not a number within ±{MAX_HEAD_GAIN} (1 turns the puppet's head as far as the performer's)",
+                self.head.gain
+            )));
         }
         Ok(())
     }
@@ -310,7 +317,7 @@ impl MappingData {
             path: path.to_owned(),
             reason: e.to_string(),
         })?;
-        write_atomically(path, text.as_bytes())
+        Ok(files::write_atomically(path, text.as_bytes())?)
     }
 }
 
@@ -321,24 +328,6 @@ pub fn sidecar_path(puppet: &Path) -> PathBuf {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     puppet.with_file_name(format!("{stem}.mapping.json"))
-}
-
-/// Writes `bytes` to a temporary file beside `path` and renames it over `path`.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    let write_err = |e: std::io::Error| RetargetError::Write {
-        path: path.to_owned(),
-        reason: e.to_string(),
-    };
-    let file_name = path.file_name().ok_or_else(|| RetargetError::Write {
-        path: path.to_owned(),
-        reason: "not a file path".into(),
-    })?;
-    let tmp = path.with_file_name(format!(".{}.tmp", file_name.to_string_lossy()));
-    std::fs::write(&tmp, bytes).map_err(write_err)?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        write_err(e)
-    })
 }
 
 #[cfg(test)]

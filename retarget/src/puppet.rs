@@ -7,17 +7,24 @@
 //! the accessor names of the first primitive's targets, else `target<k>`; skins; base
 //! colour factors and textures; the VRM extension (expressions, humanoid head).
 //!
-//! The `gltf` crate reads accessors by slicing buffers without checking every range, so
-//! every accessor (including sparse ones) is checked against its buffer view and buffer
-//! before any is read, and positions are checked for NaN.
+//! The `gltf` crate parses and validates the JSON; everything it would assume beyond that
+//! is checked here first: the accessors a primitive names exist (its validation indexes
+//! them unchecked), accessor data is read by [`crate::accessor`] (type, count and every
+//! byte range checked; the crate's reader panics on unexpected component types), buffers
+//! and images are read by [`crate::uri`] (only inside the puppet's folder, bounded), and
+//! images are decoded with bounded dimensions. Positions and transforms must be finite;
+//! the node tree must be a forest.
 
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Quat, Vec3};
+use gltf::accessor::{DataType, Dimensions};
 use serde_json::Value;
 
+use crate::accessor::{self, Budget};
 use crate::error::{Result, RetargetError, io_error};
+use crate::uri::{self, MAX_IMAGE_BYTES, PuppetFolder};
 use crate::vrm::{VrmInfo, read_vrm};
 
 /// Required extensions the loader honours (others are refused by name, as the glTF
@@ -136,6 +143,16 @@ pub fn split_gltf<'a>(bytes: &'a [u8], path: &Path) -> Result<RawGltf<'a>> {
         return Err(bad("the file is empty (0 bytes)".into()));
     }
     let (json_bytes, bin) = if bytes.starts_with(b"glTF") {
+        // The `gltf` crate subtracts the header's size from the declared length unchecked.
+        let declared = bytes
+            .get(8..12)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .ok_or_else(|| bad("broken GLB container: the 12-byte header is cut".into()))?;
+        if declared < 20 {
+            return Err(bad(format!(
+                "broken GLB container: the header declares {declared} bytes, less than a header and a chunk header"
+            )));
+        }
         let glb =
             gltf::Glb::from_slice(bytes).map_err(|e| bad(format!("broken GLB container: {e}")))?;
         (glb.json, glb.bin)
@@ -177,7 +194,8 @@ pub fn unsupported_required_extensions(json: &Value) -> Vec<String> {
 
 impl Puppet {
     /// Loads a `.gltf`, `.glb` or `.vrm` file (the format is taken from the content, not the
-    /// extension). External buffers and images are resolved beside the file.
+    /// extension). External buffers and images are read only from inside the file's folder
+    /// (see [`crate::uri`]).
     pub fn load(path: &Path) -> Result<Self> {
         let size = std::fs::metadata(path).map_err(io_error(path))?.len();
         if size > MAX_FILE_BYTES {
@@ -190,8 +208,36 @@ impl Puppet {
         Self::from_slice(&bytes, path, path.parent())
     }
 
-    /// Loads from bytes; `base` is where relative URIs point (none: only embedded data).
+    /// Loads from bytes; `base` is the folder relative URIs point into (none: only embedded
+    /// data).
+    ///
+    /// Never panics: what the `gltf` crate assumes is checked before it is asked. As a last
+    /// resort (a case the checks miss), a panic inside the reader is caught here and
+    /// returned as an error, so a file can never end the studio; the fuzz targets make such
+    /// panics fatal, so that each one found gets a check of its own.
     pub fn from_slice(bytes: &[u8], path: &Path, base: Option<&Path>) -> Result<Self> {
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            Self::from_slice_checked(bytes, path, base)
+        })) {
+            Ok(result) => result,
+            Err(panic) => {
+                let message = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| (*s).to_owned())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_default();
+                tracing::error!("{}: the glTF reader panicked: {message}", path.display());
+                Err(RetargetError::InvalidPuppet {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "malformed glTF that the reader could not handle ({message}); please report this file"
+                    ),
+                })
+            }
+        }
+    }
+
+    fn from_slice_checked(bytes: &[u8], path: &Path, base: Option<&Path>) -> Result<Self> {
         let bad = |reason: String| RetargetError::InvalidPuppet {
             path: path.to_owned(),
             reason,
@@ -204,9 +250,16 @@ impl Puppet {
                 extensions: unsupported,
             });
         }
-        let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| bad(format!("invalid glTF: {e}")))?;
+        check_json(&raw.json).map_err(bad)?;
+        let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| {
+            bad(with_compression_hint(
+                format!("invalid glTF: {e}"),
+                &raw.json,
+            ))
+        })?;
         let document = gltf.document;
-        let buffers = import_buffers(&document, base, gltf.blob, path)?;
+        let folder = LazyFolder::new(base);
+        let buffers = load_buffers(&document, &folder, gltf.blob).map_err(bad)?;
         check_accessors(&document, &buffers).map_err(bad)?;
 
         let node_mesh: Vec<Option<usize>> = document
@@ -215,29 +268,49 @@ impl Puppet {
             .collect();
         let vrm = read_vrm(raw.json.get("extensions"), &node_mesh);
 
+        let mut budget = Budget::default();
         let mut meshes = Vec::new();
         for mesh in document.meshes() {
-            meshes.push(read_mesh(&mesh, &buffers).map_err(bad)?);
+            meshes.push(
+                read_mesh(&mesh, &buffers, &mut budget)
+                    .map_err(|e| bad(with_compression_hint(e, &raw.json)))?,
+            );
         }
-        let nodes = read_nodes(&document);
-        if let Some(cycle) = find_cycle(&nodes) {
-            return Err(bad(format!(
-                "node {cycle} is its own ancestor (the node tree has a cycle)"
-            )));
-        }
+        let nodes = read_nodes(&document).map_err(bad)?;
         let mut skins = Vec::new();
         for skin in document.skins() {
-            let reader = skin.reader(|b| buffers.get(b.index()).map(|d| &d[..]));
-            let inverse_bind_matrices: Vec<Mat4> = match reader.read_inverse_bind_matrices() {
-                Some(m) => m.map(|c| Mat4::from_cols_array_2d(&c)).collect(),
-                None => vec![Mat4::IDENTITY; skin.joints().count()],
+            let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+            let inverse_bind_matrices: Vec<Mat4> = match skin.inverse_bind_matrices() {
+                Some(a) => {
+                    let what = format!("skin {} inverse bind matrices", skin.index());
+                    let m = accessor::read_vectors::<16>(
+                        &a,
+                        &buffers,
+                        &[DataType::F32],
+                        &mut budget,
+                        &what,
+                    )
+                    .map_err(bad)?;
+                    if m.len() < joints.len() {
+                        return Err(bad(format!(
+                            "{what}: {} matrices for {} joints",
+                            m.len(),
+                            joints.len()
+                        )));
+                    }
+                    m.iter().map(Mat4::from_cols_array).collect()
+                }
+                None => vec![Mat4::IDENTITY; joints.len()],
             };
             skins.push(Skin {
-                joints: skin.joints().map(|j| j.index()).collect(),
+                joints,
                 inverse_bind_matrices,
             });
         }
-        let images = import_images(&document, base, &buffers, path);
+        let images = load_images(&raw.json, &folder, &buffers, path)
+            .into_iter()
+            .map(|image| image.unwrap_or_else(|_| white()))
+            .collect::<Vec<_>>();
         let materials = document
             .materials()
             .map(|m| {
@@ -247,7 +320,7 @@ impl Puppet {
                     base_color_factor: pbr.base_color_factor(),
                     base_color_image: pbr
                         .base_color_texture()
-                        .map(|t| t.texture().source().index())
+                        .and_then(|t| texture_image(&raw.json, t.texture().index()))
                         .filter(|&i| i < images.len()),
                     double_sided: m.double_sided(),
                 }
@@ -384,74 +457,201 @@ impl Puppet {
     }
 }
 
-fn import_buffers(
-    document: &gltf::Document,
-    base: Option<&Path>,
-    blob: Option<Vec<u8>>,
-    path: &Path,
-) -> Result<Vec<gltf::buffer::Data>> {
-    let bad = |reason: String| RetargetError::InvalidPuppet {
-        path: path.to_owned(),
-        reason,
-    };
-    for buffer in document.buffers() {
-        if let gltf::buffer::Source::Uri(uri) = buffer.source()
-            && !uri.starts_with("data:")
-            && base.is_none()
-        {
-            return Err(bad(format!(
-                "buffer {} refers to the external file `{uri}`, but the puppet was not loaded from a folder",
-                buffer.index()
-            )));
+/// The puppet's folder, opened (made canonical) on the first external URI only, so that a
+/// file with embedded data loads wherever it is.
+pub(crate) struct LazyFolder<'a> {
+    base: Option<&'a Path>,
+    opened: std::cell::OnceCell<std::result::Result<PuppetFolder, String>>,
+}
+
+impl<'a> LazyFolder<'a> {
+    pub(crate) fn new(base: Option<&'a Path>) -> Self {
+        Self {
+            base,
+            opened: std::cell::OnceCell::new(),
         }
     }
-    let buffers = gltf::import_buffers(document, base, blob)
-        .map_err(|e| bad(format!("cannot read its buffers: {e}")))?;
-    for (buffer, data) in document.buffers().zip(&buffers) {
-        if data.len() < buffer.length() {
-            return Err(bad(format!(
-                "buffer {} declares {} bytes but holds {}",
-                buffer.index(),
-                buffer.length(),
-                data.len()
-            )));
+
+    /// Reads the external file `uri` (see [`PuppetFolder::read`]).
+    pub(crate) fn read(
+        &self,
+        uri: &str,
+        max_bytes: u64,
+        take_prefix: bool,
+        what: &str,
+    ) -> std::result::Result<Vec<u8>, String> {
+        let Some(base) = self.base else {
+            return Err(format!(
+                "{what} refers to the external file `{uri}`, but the puppet was not loaded from a folder"
+            ));
+        };
+        match self.opened.get_or_init(|| PuppetFolder::new(base)) {
+            Ok(folder) => folder.read(uri, max_bytes, take_prefix, what),
+            Err(e) => Err(format!("{what}: {e}")),
         }
+    }
+}
+
+/// Every buffer's bytes: the GLB's binary chunk, a `data:` URI, or a file inside the
+/// puppet's folder, exactly `byteLength` long (longer sources are cut; shorter are errors).
+pub(crate) fn load_buffers(
+    document: &gltf::Document,
+    folder: &LazyFolder,
+    mut blob: Option<Vec<u8>>,
+) -> std::result::Result<Vec<Vec<u8>>, String> {
+    let mut buffers = Vec::new();
+    for buffer in document.buffers() {
+        let what = format!("buffer {}", buffer.index());
+        let length = buffer.length();
+        if length as u64 > MAX_FILE_BYTES {
+            return Err(format!(
+                "{what} declares {length} bytes, more than the {MAX_FILE_BYTES} a puppet may have"
+            ));
+        }
+        let mut data = match buffer.source() {
+            gltf::buffer::Source::Bin => blob.take().ok_or_else(|| {
+                format!("{what} is the GLB binary chunk, but the file has none (or uses it twice)")
+            })?,
+            gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
+                uri::decode_data_uri(uri, MAX_FILE_BYTES)
+                    .map_err(|e| format!("{what}: {e}"))?
+                    .0
+            }
+            gltf::buffer::Source::Uri(uri) => folder.read(uri, length as u64, true, &what)?,
+        };
+        if data.len() < length {
+            return Err(format!(
+                "{what} declares {length} bytes but holds {}",
+                data.len()
+            ));
+        }
+        data.truncate(length);
+        buffers.push(data);
     }
     Ok(buffers)
 }
 
-/// Decodes the images; one that cannot be decoded is replaced by white (with a warning), as
-/// a missing texture should not make the puppet unusable.
-fn import_images(
-    document: &gltf::Document,
-    base: Option<&Path>,
-    buffers: &[gltf::buffer::Data],
+/// Where an image's bytes come from, as the JSON says.
+pub(crate) enum ImageSource<'j> {
+    View(usize),
+    DataUri(&'j str),
+    File(&'j str),
+}
+
+/// Image `k`'s source, or why it has none.
+pub(crate) fn image_source(image: &Value) -> std::result::Result<ImageSource<'_>, String> {
+    if let Some(view) = image.get("bufferView") {
+        let view = view.as_u64().ok_or("its `bufferView` is not an index")? as usize;
+        if image.get("mimeType").and_then(Value::as_str).is_none() {
+            return Err(
+                "it has a `bufferView` but no `mimeType` (glTF requires one: image/png or image/jpeg)"
+                    .into(),
+            );
+        }
+        return Ok(ImageSource::View(view));
+    }
+    match image.get("uri").and_then(Value::as_str) {
+        Some(uri) if uri.starts_with("data:") => Ok(ImageSource::DataUri(uri)),
+        Some(uri) => Ok(ImageSource::File(uri)),
+        None => Err("it has neither a `uri` nor a `bufferView`".into()),
+    }
+}
+
+/// The encoded bytes of an image (not decoded).
+pub(crate) fn image_bytes(
+    source: &ImageSource,
+    json: &Value,
+    buffers: &[Vec<u8>],
+    folder: &LazyFolder,
+    what: &str,
+) -> std::result::Result<Vec<u8>, String> {
+    match *source {
+        ImageSource::View(view) => {
+            let v = json
+                .get("bufferViews")
+                .and_then(|v| v.get(view))
+                .ok_or_else(|| format!("{what}: buffer view {view} does not exist"))?;
+            let field = |name: &str| v.get(name).and_then(Value::as_u64).unwrap_or(0) as usize;
+            let data = buffers
+                .get(field("buffer"))
+                .ok_or_else(|| format!("{what}: buffer view {view} has no buffer"))?;
+            let start = field("byteOffset");
+            let end = start.checked_add(field("byteLength"));
+            end.and_then(|end| data.get(start..end))
+                .map(<[u8]>::to_vec)
+                .ok_or_else(|| format!("{what}: buffer view {view} runs past its buffer"))
+        }
+        ImageSource::DataUri(uri) => uri::decode_data_uri(uri, MAX_IMAGE_BYTES)
+            .map(|(bytes, _)| bytes)
+            .map_err(|e| format!("{what}: {e}")),
+        ImageSource::File(uri) => folder.read(uri, MAX_IMAGE_BYTES, false, what),
+    }
+}
+
+/// Largest image side decoded (larger images are drawn white): 16k is the largest texture
+/// GPUs take.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// Decodes PNG or JPEG bytes with bounded dimensions and memory.
+pub fn decode_image(bytes: &[u8]) -> std::result::Result<RgbaImage, String> {
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| e.to_string())?;
+    if !matches!(
+        reader.format(),
+        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg)
+    ) {
+        return Err("not a PNG or JPEG image".into());
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE);
+    limits.max_alloc = Some(1 << 30);
+    reader.limits(limits);
+    let decoded = reader.decode().map_err(|e| e.to_string())?.into_rgba8();
+    Ok(RgbaImage {
+        width: decoded.width(),
+        height: decoded.height(),
+        pixels: decoded.into_raw(),
+    })
+}
+
+/// Decodes every image; one that cannot be read or decoded is `Err` with the reason (and a
+/// warning): a missing texture should not make the puppet unusable, so the loader draws it
+/// white.
+pub(crate) fn load_images(
+    json: &Value,
+    folder: &LazyFolder,
+    buffers: &[Vec<u8>],
     path: &Path,
-) -> Vec<RgbaImage> {
-    document
-        .images()
-        .map(|image| {
-            let decoded = gltf::image::Data::from_source(image.source(), base, buffers);
-            match decoded {
-                Ok(data) => to_rgba(&data).unwrap_or_else(|| {
-                    tracing::warn!(
-                        "{}: image {} has an unsupported pixel format; drawn white",
-                        path.display(),
-                        image.index()
-                    );
-                    white()
-                }),
-                Err(e) => {
-                    tracing::warn!(
-                        "{}: image {} cannot be read ({e}); drawn white",
-                        path.display(),
-                        image.index()
-                    );
-                    white()
-                }
+) -> Vec<std::result::Result<RgbaImage, String>> {
+    let images = json
+        .get("images")
+        .and_then(Value::as_array)
+        .map(Vec::as_slice)
+        .unwrap_or_default();
+    images
+        .iter()
+        .enumerate()
+        .map(|(k, image)| {
+            let what = format!("image {k}");
+            let decoded = image_source(image)
+                .map_err(|e| format!("{what}: {e}"))
+                .and_then(|source| image_bytes(&source, json, buffers, folder, &what))
+                .and_then(|bytes| decode_image(&bytes).map_err(|e| format!("{what}: {e}")));
+            if let Err(e) = &decoded {
+                tracing::warn!("{}: {e}; drawn white", path.display());
             }
+            decoded
         })
         .collect()
+}
+
+/// The image texture `texture` shows (its `source`, or an extension's, e.g.
+/// `KHR_texture_basisu`, when it has none).
+fn texture_image(json: &Value, texture: usize) -> Option<usize> {
+    let t = json.get("textures")?.get(texture)?;
+    t.get("source").and_then(Value::as_u64).map(|i| i as usize)
 }
 
 fn white() -> RgbaImage {
@@ -462,38 +662,77 @@ fn white() -> RgbaImage {
     }
 }
 
-fn to_rgba(data: &gltf::image::Data) -> Option<RgbaImage> {
-    use gltf::image::Format;
-    let p = &data.pixels;
-    let pixels: Vec<u8> = match data.format {
-        Format::R8G8B8A8 => p.clone(),
-        Format::R8G8B8 => p
-            .chunks_exact(3)
-            .flat_map(|c| [c[0], c[1], c[2], 255])
-            .collect(),
-        Format::R8G8 => p
-            .chunks_exact(2)
-            .flat_map(|c| [c[0], c[0], c[0], c[1]])
-            .collect(),
-        Format::R8 => p.iter().flat_map(|&v| [v, v, v, 255]).collect(),
-        Format::R16G16B16A16 => p.chunks_exact(2).map(|c| c[1]).collect(),
-        Format::R16G16B16 => p
-            .chunks_exact(6)
-            .flat_map(|c| [c[1], c[3], c[5], 255])
-            .collect(),
-        _ => return None,
+/// What the `gltf` crate assumes of the JSON before its own validation (which itself
+/// indexes `accessors` with a primitive's POSITION without checking it): every accessor a
+/// primitive names exists.
+fn check_json(json: &Value) -> std::result::Result<(), String> {
+    let accessors = json
+        .get("accessors")
+        .and_then(Value::as_array)
+        .map_or(0, Vec::len);
+    let check = |at: &str, v: &Value| -> std::result::Result<(), String> {
+        match v.as_u64() {
+            Some(i) if (i as usize) < accessors => Ok(()),
+            _ => Err(format!(
+                "{at} refers to accessor {v}, but the file has {accessors} accessor(s)"
+            )),
+        }
     };
-    (pixels.len() == data.width as usize * data.height as usize * 4).then_some(RgbaImage {
-        width: data.width,
-        height: data.height,
-        pixels,
-    })
+    let meshes = json.get("meshes").and_then(Value::as_array);
+    for (m, mesh) in meshes.into_iter().flatten().enumerate() {
+        let primitives = mesh.get("primitives").and_then(Value::as_array);
+        for (p, primitive) in primitives.into_iter().flatten().enumerate() {
+            let at = format!("mesh {m} primitive {p}");
+            if let Some(attributes) = primitive.get("attributes").and_then(Value::as_object) {
+                for (name, v) in attributes {
+                    check(&format!("{at} attribute {name}"), v)?;
+                }
+            }
+            if let Some(v) = primitive.get("indices") {
+                check(&format!("{at} indices"), v)?;
+            }
+            let targets = primitive.get("targets").and_then(Value::as_array);
+            for (k, target) in targets.into_iter().flatten().enumerate() {
+                for (name, v) in target.as_object().into_iter().flatten() {
+                    check(&format!("{at} morph target {k} {name}"), v)?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Compression extensions a file may use without requiring them (with an uncompressed
+/// fallback); when the fallback is missing, the error says which extension is the reason.
+const COMPRESSION_EXTENSIONS: &[&str] = &[
+    "KHR_draco_mesh_compression",
+    "EXT_meshopt_compression",
+    "KHR_mesh_quantization",
+];
+
+fn with_compression_hint(error: String, json: &Value) -> String {
+    let used: Vec<&str> = json
+        .get("extensionsUsed")
+        .and_then(Value::as_array)
+        .into_iter()
+        .flatten()
+        .filter_map(Value::as_str)
+        .filter(|e| COMPRESSION_EXTENSIONS.contains(e))
+        .collect();
+    if used.is_empty() {
+        error
+    } else {
+        format!(
+            "{error}; the file uses {} without an uncompressed fallback, which Likeness does not decode (export the puppet without compression)",
+            used.join(", ")
+        )
+    }
 }
 
 /// Every accessor's bytes lie inside its buffer view, and every view inside its buffer.
 fn check_accessors(
     document: &gltf::Document,
-    buffers: &[gltf::buffer::Data],
+    buffers: &[Vec<u8>],
 ) -> std::result::Result<(), String> {
     let view_range = |view: &gltf::buffer::View| -> std::result::Result<(), String> {
         let data = buffers
@@ -582,24 +821,6 @@ fn check_accessors(
                     ));
                 }
             }
-            // Sparse indices must address elements of the accessor.
-            let data = &buffers[indices.view().buffer().index()];
-            let start = indices.view().offset() + indices.offset();
-            for k in 0..n {
-                let at = start + k * index_size;
-                let b = &data[at..at + index_size];
-                let i = match index_size {
-                    1 => b[0] as usize,
-                    2 => u16::from_le_bytes([b[0], b[1]]) as usize,
-                    _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
-                };
-                if i >= count {
-                    return Err(format!(
-                        "accessor {}: sparse index {i} is past its {count} elements",
-                        accessor.index()
-                    ));
-                }
-            }
         }
     }
     Ok(())
@@ -621,8 +842,10 @@ fn expect_vec3_f32(accessor: &gltf::Accessor, what: &str) -> std::result::Result
 
 fn read_mesh(
     mesh: &gltf::Mesh,
-    buffers: &[gltf::buffer::Data],
+    buffers: &[Vec<u8>],
+    budget: &mut Budget,
 ) -> std::result::Result<Mesh, String> {
+    use DataType::{F32, I8, I16, U8, U16, U32};
     let name = mesh
         .name()
         .map_or_else(|| format!("mesh{}", mesh.index()), str::to_owned);
@@ -654,57 +877,51 @@ fn read_mesh(
             .ok_or_else(|| format!("{at} has no POSITION"))?;
         expect_vec3_f32(&position_accessor, &format!("{at} POSITION"))?;
         let vertex_count = position_accessor.count();
-        for (semantic, what) in [(gltf::Semantic::Normals, "NORMAL")] {
-            if let Some(a) = primitive.get(&semantic) {
-                expect_vec3_f32(&a, &format!("{at} {what}"))?;
+        let positions = accessor::read_vectors::<3>(
+            &position_accessor,
+            buffers,
+            &[F32],
+            budget,
+            &format!("{at} POSITION"),
+        )?;
+        // Optional attributes of the wrong length or type are errors, as a viewer that
+        // used them would draw garbage.
+        let attribute = |semantic: gltf::Semantic, what: &str| {
+            primitive.get(&semantic).map(|a| {
                 if a.count() != vertex_count {
-                    return Err(format!(
+                    Err(format!(
                         "{at}: {what} has {} elements for {vertex_count} positions",
                         a.count()
-                    ));
+                    ))
+                } else {
+                    Ok((a, format!("{at} {what}")))
                 }
+            })
+        };
+        let normals: Vec<[f32; 3]> = match attribute(gltf::Semantic::Normals, "NORMAL") {
+            Some(found) => {
+                let (a, what) = found?;
+                accessor::read_vectors::<3>(&a, buffers, &[F32], budget, &what)?
             }
-        }
-        for (k, target) in primitive.morph_targets().enumerate() {
-            for (accessor, what) in [
-                (target.positions(), "POSITION"),
-                (target.normals(), "NORMAL"),
-            ] {
-                if let Some(a) = accessor {
-                    expect_vec3_f32(&a, &format!("{at} morph target {k} {what}"))?;
-                    if a.count() != vertex_count {
-                        return Err(format!(
-                            "{at}: morph target {k} {what} has {} elements for {vertex_count} vertices",
-                            a.count()
-                        ));
-                    }
-                }
+            None => Vec::new(),
+        };
+        let uvs: Vec<[f32; 2]> = match attribute(gltf::Semantic::TexCoords(0), "TEXCOORD_0") {
+            Some(found) => {
+                let (a, what) = found?;
+                // Integer texcoords are only valid normalised (KHR_mesh_quantization).
+                accessor::read_vectors::<2>(&a, buffers, &[F32, U8, U16, I8, I16], budget, &what)?
             }
-        }
-        let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d[..]));
-        let positions: Vec<[f32; 3]> = reader
-            .read_positions()
-            .ok_or_else(|| format!("{at}: POSITION cannot be read"))?
-            .collect();
-        if let Some(k) = positions
-            .iter()
-            .position(|p| p.iter().any(|v| !v.is_finite()))
-        {
-            return Err(format!(
-                "{at}: position {k} is not finite ({:?})",
-                positions[k]
-            ));
-        }
-        let normals: Vec<[f32; 3]> = reader
-            .read_normals()
-            .map(|n| n.collect())
-            .unwrap_or_default();
-        let uvs: Vec<[f32; 2]> = reader
-            .read_tex_coords(0)
-            .map(|t| t.into_f32().collect())
-            .unwrap_or_default();
-        let indices: Vec<u32> = match reader.read_indices() {
-            Some(i) => i.into_u32().collect(),
+            None => Vec::new(),
+        };
+        let indices: Vec<u32> = match primitive.indices() {
+            Some(a) => accessor::read_uints(
+                &a,
+                buffers,
+                &[U8, U16, U32],
+                Dimensions::Scalar,
+                budget,
+                &format!("{at} indices"),
+            )?,
             None => (0..vertex_count as u32).collect(),
         };
         if let Some(&i) = indices.iter().find(|&&i| i as usize >= vertex_count) {
@@ -712,28 +929,47 @@ fn read_mesh(
                 "{at}: index {i} is past its {vertex_count} vertices"
             ));
         }
-        let joints: Vec<[u16; 4]> = reader
-            .read_joints(0)
-            .map(|j| j.into_u16().collect())
-            .unwrap_or_default();
-        let weights: Vec<[f32; 4]> = reader
-            .read_weights(0)
-            .map(|w| w.into_f32().collect())
-            .unwrap_or_default();
-        let mut targets = Vec::with_capacity(target_count);
-        for (k, (p, n, _)) in reader.read_morph_targets().enumerate() {
-            let positions: Vec<[f32; 3]> = p
-                .map(|p| p.collect())
-                .unwrap_or_else(|| vec![[0.0; 3]; vertex_count]);
-            if let Some(v) = positions
-                .iter()
-                .position(|p| p.iter().any(|v| !v.is_finite()))
-            {
-                return Err(format!(
-                    "{at}: morph target {k} moves vertex {v} by a non-finite amount"
-                ));
+        let joints: Vec<[u16; 4]> = match attribute(gltf::Semantic::Joints(0), "JOINTS_0") {
+            Some(found) => {
+                let (a, what) = found?;
+                let flat =
+                    accessor::read_uints(&a, buffers, &[U8, U16], Dimensions::Vec4, budget, &what)?;
+                flat.chunks_exact(4)
+                    .map(|c| [c[0] as u16, c[1] as u16, c[2] as u16, c[3] as u16])
+                    .collect()
             }
-            let normals: Vec<[f32; 3]> = n.map(|n| n.collect()).unwrap_or_default();
+            None => Vec::new(),
+        };
+        let weights: Vec<[f32; 4]> = match attribute(gltf::Semantic::Weights(0), "WEIGHTS_0") {
+            Some(found) => {
+                let (a, what) = found?;
+                accessor::read_vectors::<4>(&a, buffers, &[F32, U8, U16], budget, &what)?
+            }
+            None => Vec::new(),
+        };
+        let mut targets = Vec::with_capacity(target_count);
+        for (k, target) in primitive.morph_targets().enumerate() {
+            let mut read_target = |accessor: Option<gltf::Accessor>, what: &str| {
+                let what = format!("{at} morph target {k} {what}");
+                match accessor {
+                    Some(a) => {
+                        expect_vec3_f32(&a, &what)?;
+                        if a.count() != vertex_count {
+                            return Err(format!(
+                                "{what} has {} elements for {vertex_count} vertices",
+                                a.count()
+                            ));
+                        }
+                        accessor::read_vectors::<3>(&a, buffers, &[F32], budget, &what)
+                    }
+                    None => Ok(Vec::new()),
+                }
+            };
+            let mut positions = read_target(target.positions(), "POSITION")?;
+            let normals = read_target(target.normals(), "NORMAL")?;
+            if positions.is_empty() {
+                positions = vec![[0.0; 3]; vertex_count];
+            }
             targets.push(MorphTarget { positions, normals });
         }
         primitives.push(Primitive {
@@ -750,6 +986,11 @@ fn read_mesh(
     let target_names = target_names(mesh, target_count);
     let mut default_weights = mesh.weights().map(<[f32]>::to_vec).unwrap_or_default();
     default_weights.resize(target_count, 0.0);
+    if default_weights.iter().any(|w| !w.is_finite()) {
+        return Err(format!(
+            "mesh `{name}`: its default `weights` are not all finite"
+        ));
+    }
     Ok(Mesh {
         name,
         target_names,
@@ -799,35 +1040,62 @@ fn target_names(mesh: &gltf::Mesh, count: usize) -> Vec<String> {
         .collect()
 }
 
-fn read_nodes(document: &gltf::Document) -> Vec<Node> {
-    let mut nodes: Vec<Node> = document
-        .nodes()
-        .map(|n| {
-            let (t, r, s) = n.transform().decomposed();
-            Node {
-                name: n
-                    .name()
-                    .map_or_else(|| format!("node{}", n.index()), str::to_owned),
-                parent: None,
-                children: n.children().map(|c| c.index()).collect(),
-                mesh: n.mesh().map(|m| m.index()),
-                skin: n.skin().map(|s| s.index()),
-                translation: Vec3::from(t),
-                rotation: Quat::from_array(r).normalize(),
-                scale: Vec3::from(s),
-            }
-        })
-        .collect();
+/// The node tree, refused when it is not a forest (a node with two parents, a cycle) or a
+/// transform is not finite.
+fn read_nodes(document: &gltf::Document) -> std::result::Result<Vec<Node>, String> {
+    let mut nodes = Vec::new();
+    for n in document.nodes() {
+        let (t, r, s) = n.transform().decomposed();
+        if t.iter().chain(&r).chain(&s).any(|v| !v.is_finite()) {
+            return Err(format!("node {}: its transform is not finite", n.index()));
+        }
+        let rotation = Quat::from_array(r);
+        // A zero quaternion has no direction to normalise to.
+        let rotation = if rotation.length_squared() > 1e-12 {
+            rotation.normalize()
+        } else {
+            Quat::IDENTITY
+        };
+        nodes.push(Node {
+            name: n
+                .name()
+                .map_or_else(|| format!("node{}", n.index()), str::to_owned),
+            parent: None,
+            children: n.children().map(|c| c.index()).collect(),
+            mesh: n.mesh().map(|m| m.index()),
+            skin: n.skin().map(|s| s.index()),
+            translation: Vec3::from(t),
+            rotation,
+            scale: Vec3::from(s),
+        });
+    }
     for i in 0..nodes.len() {
         for c in nodes[i].children.clone() {
-            if let Some(child) = nodes.get_mut(c) {
-                child.parent = Some(i);
+            let Some(child) = nodes.get_mut(c) else {
+                return Err(format!("node {i} has child {c}, which does not exist"));
+            };
+            if let Some(p) = child.parent.filter(|&p| p != i) {
+                return Err(format!(
+                    "node {c} is a child of both node {p} and node {i} (glTF node trees give each node one parent)"
+                ));
             }
+            if c == i || child.parent == Some(i) {
+                return Err(format!(
+                    "node {i} lists node {c} as its child twice or is its own child (the node tree has a cycle)"
+                ));
+            }
+            child.parent = Some(i);
         }
     }
-    nodes
+    if let Some(cycle) = find_cycle(&nodes) {
+        return Err(format!(
+            "node {cycle} is its own ancestor (the node tree has a cycle)"
+        ));
+    }
+    Ok(nodes)
 }
 
+/// With one parent per node, a cycle is a parent chain that comes back to its start.
 fn find_cycle(nodes: &[Node]) -> Option<usize> {
     (0..nodes.len()).find(|&start| {
         let mut at = nodes[start].parent;

@@ -30,7 +30,6 @@ use serde_json::{Value, json};
 
 use crate::error::{Result, RetargetError};
 use crate::glb::{ARRAY_BUFFER, GlbBuilder};
-use crate::mapping::write_atomically;
 
 /// Range of the dynamic albedo encoding: `rgb = 0.5 + dR / (2 x range)`.
 pub const DYNAMIC_ALBEDO_RANGE: f32 = 0.25;
@@ -110,7 +109,7 @@ fn png(map: &UvMap, encode: impl Fn(f32) -> f32) -> std::result::Result<Vec<u8>,
 
 /// Writes the rig; the file is replaced atomically.
 pub fn write_rig_glb(rig: &PersonalizedRig, out: &Path) -> Result<()> {
-    write_atomically(out, &rig_glb_bytes(rig, out)?)
+    Ok(files::write_atomically(out, &rig_glb_bytes(rig, out)?)?)
 }
 
 /// [`write_rig_glb`]'s file as bytes (a download in the browser); `out` names it in

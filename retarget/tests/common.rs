@@ -5,6 +5,9 @@
 
 use retarget::glb::{ARRAY_BUFFER, GlbBuilder};
 use serde_json::{Value, json};
+use std::cell::Cell;
+
+use retarget::Puppet;
 
 pub enum Naming {
     Extras,
@@ -79,4 +82,75 @@ pub fn temp_dir(name: &str) -> std::path::PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
+}
+
+thread_local! {
+    static PANICKED: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Loads `bytes`, failing the test if anything panicked on the way, even a panic the loader
+/// caught itself (its last-resort guard must never be what saves a known file).
+pub fn load_detecting_panics(
+    bytes: &[u8],
+    base: Option<&std::path::Path>,
+) -> Result<Puppet, String> {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            PANICKED.with(|p| p.set(true));
+            previous(info);
+        }));
+    });
+    PANICKED.with(|p| p.set(false));
+    let result = Puppet::from_slice(bytes, std::path::Path::new("hostile.gltf"), base);
+    assert!(
+        !PANICKED.with(Cell::get),
+        "the loader panicked (and caught it) on this file"
+    );
+    result.map_err(|e| e.to_string())
+}
+
+/// Runs the Khronos glTF validator (npm `gltf-validator`, installed into
+/// tools/gltf-validator by scripts/setup.sh) on `file`: errors fail the test; warnings and
+/// infos are printed.
+pub fn validate(file: &std::path::Path) {
+    let script = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../tools/gltf-validator/validate.mjs");
+    let modules = script.with_file_name("node_modules").join("gltf-validator");
+    assert!(
+        modules.is_dir(),
+        "the Khronos validator is not installed: run scripts/setup.sh (npm install in tools/gltf-validator)"
+    );
+    let out = std::process::Command::new("node")
+        .arg(&script)
+        .arg(file)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run node ({e}): run scripts/setup.sh"));
+    let report = String::from_utf8_lossy(&out.stdout);
+    let issues: serde_json::Value = serde_json::from_str(report.trim()).unwrap_or_else(|e| {
+        panic!(
+            "validator output is not JSON ({e}): {report} {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    let errors = issues["numErrors"].as_u64().unwrap_or(u64::MAX);
+    let messages: Vec<String> = issues["messages"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|m| {
+            format!(
+                "[{}] {} {} {}",
+                m["severity"], m["code"], m["pointer"], m["message"]
+            )
+        })
+        .collect();
+    println!(
+        "{}: {errors} errors, {} warnings\n{}",
+        file.display(),
+        issues["numWarnings"],
+        messages.join("\n")
+    );
+    assert_eq!(errors, 0, "{}:\n{}", file.display(), messages.join("\n"));
 }

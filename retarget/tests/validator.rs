@@ -4,51 +4,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
-
-use common::temp_dir;
-
-fn validate(file: &Path) {
-    let script =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tools/gltf-validator/validate.mjs");
-    let modules = script.with_file_name("node_modules").join("gltf-validator");
-    assert!(
-        modules.is_dir(),
-        "the Khronos validator is not installed: run scripts/setup.sh (npm install in tools/gltf-validator)"
-    );
-    let out = Command::new("node")
-        .arg(&script)
-        .arg(file)
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run node ({e}): run scripts/setup.sh"));
-    let report = String::from_utf8_lossy(&out.stdout);
-    let issues: serde_json::Value = serde_json::from_str(report.trim()).unwrap_or_else(|e| {
-        panic!(
-            "validator output is not JSON ({e}): {report} {}",
-            String::from_utf8_lossy(&out.stderr)
-        )
-    });
-    let errors = issues["numErrors"].as_u64().unwrap_or(u64::MAX);
-    let messages: Vec<String> = issues["messages"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .map(|m| {
-            format!(
-                "[{}] {} {} {}",
-                m["severity"], m["code"], m["pointer"], m["message"]
-            )
-        })
-        .collect();
-    println!(
-        "{}: {errors} errors, {} warnings\n{}",
-        file.display(),
-        issues["numWarnings"],
-        messages.join("\n")
-    );
-    assert_eq!(errors, 0, "{}:\n{}", file.display(), messages.join("\n"));
-}
+use common::{temp_dir, validate};
 
 #[test]
 fn exported_files_pass_the_khronos_validator() {

@@ -39,6 +39,8 @@ pub enum TrackingError {
     Relayed(String),
     #[error(transparent)]
     Face(#[from] face::FaceError),
+    #[error(transparent)]
+    Write(#[from] files::WriteError),
 }
 
 pub type Result<T, E = TrackingError> = std::result::Result<T, E>;

@@ -26,8 +26,10 @@ use crate::source::{Frame, FrameError, FrameSource, Next};
 /// How faces are found in a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LocatorChoice {
-    /// OpenSeeFace detection and landmarks when the models are there; otherwise every
-    /// image is taken as a face crop (with a warning).
+    /// OpenSeeFace detection and landmarks. Without the models (a missing, mistyped or
+    /// broken `models_dir`) an error, unless the caller says the input is not footage
+    /// ([`Tracker::new`]'s `footage`), when every image is taken as a face crop with a
+    /// warning. The CLI always treats its input as footage.
     #[default]
     Auto,
     /// OpenSeeFace detection and landmarks; an error without the models.
@@ -275,8 +277,10 @@ fn ms(since: Instant) -> f64 {
 
 impl Tracker {
     /// Loads the networks and, as the locator asks, the OpenSeeFace models. `footage`
-    /// says whether the input is real footage (video, camera), which cannot be tracked
-    /// without face detection.
+    /// says whether the input may be real footage (any image of a person, a video, a
+    /// camera), which cannot be tracked without face detection: `Auto` then refuses to
+    /// fall back to pre-cropped input when the models cannot be loaded. Only input known
+    /// to be face crops (synthetic renders) should pass `false`.
     pub fn new(face: Arc<FaceModel>, config: TrackerConfig, footage: bool) -> Result<Self> {
         let kind = config.backend.resolve()?;
         let manifest = Manifest::load(&config.networks_dir)?;
@@ -297,7 +301,12 @@ impl Tracker {
                     }
                     Err(e) => {
                         return Err(TrackingError::InvalidInput(format!(
-                            "real footage needs face detection: {e}. Pass --locator precropped if every frame is already a face crop."
+                            "real footage needs face detection, and the OpenSeeFace models \
+                             were looked for in {}: {e}. Without them no face is found, so \
+                             nothing is tracked rather than taking the whole frame as the \
+                             face; if every frame is already a face crop framed like the \
+                             training images, say so with --locator precropped.",
+                            config.models_dir.display()
                         )));
                     }
                 }

@@ -157,6 +157,9 @@ impl TracksDocument {
         if doc.blendshape_names != ICT_NAMES || doc.arkit_names != ARKIT_NAMES {
             return Err("`blendshape_names` / `arkit_names` are not Likeness's".into());
         }
+        // In the flattened frame values a JSON number beyond the f32 range reads as an
+        // infinite f32 (which would be written back as `null`); elsewhere serde refuses it.
+        let finite = |values: &[f32]| values.iter().all(|v| v.is_finite());
         for f in &doc.frames {
             if let Some(t) = &f.track {
                 if t.weights.len() != NUM_BLENDSHAPES
@@ -165,6 +168,20 @@ impl TracksDocument {
                     || t.landmarks_68.len() != NUM_LANDMARKS
                 {
                     return Err(format!("frame {}: arrays of the wrong length", f.index));
+                }
+                let all_finite = finite(&t.weights)
+                    && finite(&t.arkit_weights)
+                    && finite(&t.rotation_deg)
+                    && finite(&t.translation)
+                    && finite(&t.sh)
+                    && t.landmarks_68.iter().all(|p| finite(p))
+                    && finite(&t.face_box)
+                    && t.confidence.is_finite();
+                if !all_finite {
+                    return Err(format!(
+                        "frame {}: a value is not a finite 32-bit float",
+                        f.index
+                    ));
                 }
             } else if f.face {
                 return Err(format!(
@@ -183,7 +200,7 @@ impl TracksDocument {
 
     /// Writes the document atomically (a temporary file renamed over `path`).
     pub fn save(&self, path: &Path) -> Result<()> {
-        write_atomically(path, self.to_json().as_bytes())
+        Ok(files::write_atomically(path, self.to_json().as_bytes())?)
     }
 
     pub fn load(path: &Path) -> Result<Self> {
@@ -193,42 +210,4 @@ impl TracksDocument {
             reason,
         })
     }
-}
-
-/// Writes `bytes` to a temporary file beside `path`, syncs it and renames it over `path`, so
-/// a crash or a full disk never leaves a half-written file under the final name.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    use std::io::Write;
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    if !dir.is_dir() {
-        return Err(TrackingError::Io {
-            path: dir.to_owned(),
-            source: std::io::Error::new(
-                std::io::ErrorKind::NotFound,
-                "the output folder does not exist",
-            ),
-        });
-    }
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "output".into());
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    let result = (|| {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(source) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(TrackingError::Io {
-            path: path.to_owned(),
-            source,
-        });
-    }
-    Ok(())
 }

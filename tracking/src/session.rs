@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, TrackingError, io_error};
 use crate::networks::chw_to_uv;
-use crate::record::{TracksDocument, write_atomically};
+use crate::record::TracksDocument;
 
 pub const SESSION_FORMAT: &str = "likeness-session";
 /// Version 1: corrections as f32 tensors `dS0` [3,128,128], `dS` [53,3,128,128], `dR0`,
@@ -158,7 +158,7 @@ impl Session {
 
     /// Writes the session atomically.
     pub fn save(&self, path: &Path) -> Result<()> {
-        write_atomically(path, &self.to_bytes()?)
+        Ok(files::write_atomically(path, &self.to_bytes()?)?)
     }
 
     pub fn load(path: &Path) -> Result<Self> {
@@ -170,26 +170,7 @@ impl Session {
     }
 
     pub fn from_bytes(bytes: &[u8]) -> std::result::Result<Self, String> {
-        let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
-            .map_err(|e| format!("not a Likeness session ({e})"))?;
-        let meta = metadata.metadata().clone().unwrap_or_default();
-        if meta.get("format").map(String::as_str) != Some(SESSION_FORMAT) {
-            return Err("not a Likeness session (no `format: likeness-session`)".into());
-        }
-        let version: u32 = meta
-            .get("version")
-            .and_then(|v| v.parse().ok())
-            .ok_or("the session has no readable version")?;
-        if version > SESSION_VERSION {
-            return Err(format!(
-                "session version {version} is newer than this Likeness reads ({SESSION_VERSION}); update Likeness"
-            ));
-        }
-        let info: SessionInfo = serde_json::from_str(meta.get("info").map_or("{}", String::as_str))
-            .map_err(|e| format!("`info`: {e}"))?;
-        let tracks = TracksDocument::from_json(meta.get("tracks").map_or("", String::as_str))
-            .map_err(|e| format!("`tracks`: {e}"))?;
-        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| e.to_string())?;
+        let (parts, st) = SessionParts::read(bytes)?;
         let n = CORRECTION_SIZE;
         let read = |name: &str, shape: &[usize]| -> std::result::Result<Vec<f32>, String> {
             let t = st
@@ -222,6 +203,79 @@ impl Session {
                 .map(|i| chw_to_uv(&v[i * plane..(i + 1) * plane], n, n))
                 .collect()
         };
+        Ok(Self {
+            info: parts.info,
+            footage: parts.footage,
+            observations: parts.observations,
+            corrections: PersonalCorrections {
+                identity_shape: chw_to_uv(&ds0, n, n),
+                expression_shapes: split(&ds),
+                static_albedo: chw_to_uv(&dr0, n, n),
+                dynamic_albedo: split(&dr),
+            },
+            tracks: parts.tracks,
+        })
+    }
+}
+
+/// Everything of a session file but its corrections, with the checks of
+/// [`Session::from_bytes`], which reads these first: for what needs the tracking and the
+/// footage only, and for the fuzz targets, which reach every check of a file's own data
+/// without the 21 MB of correction tensors in each case.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SessionParts {
+    pub version: u32,
+    pub info: SessionInfo,
+    pub tracks: TracksDocument,
+    pub footage: Option<Vec<image::RgbImage>>,
+    pub observations: Vec<FrameObservations>,
+}
+
+impl SessionParts {
+    pub fn from_bytes(bytes: &[u8]) -> std::result::Result<Self, String> {
+        Self::read(bytes).map(|(parts, _)| parts)
+    }
+
+    /// The parts and the file's tensors (for the corrections).
+    fn read(bytes: &[u8]) -> std::result::Result<(Self, safetensors::SafeTensors<'_>), String> {
+        let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
+            .map_err(|e| format!("not a Likeness session ({e})"))?;
+        let meta = metadata.metadata().clone().unwrap_or_default();
+        if meta.get("format").map(String::as_str) != Some(SESSION_FORMAT) {
+            return Err("not a Likeness session (no `format: likeness-session`)".into());
+        }
+        let version: u32 = meta
+            .get("version")
+            .and_then(|v| v.parse().ok())
+            .ok_or("the session has no readable version")?;
+        if version > SESSION_VERSION {
+            return Err(format!(
+                "session version {version} is newer than this Likeness reads ({SESSION_VERSION}); update Likeness"
+            ));
+        }
+        let info: SessionInfo = serde_json::from_str(meta.get("info").map_or("{}", String::as_str))
+            .map_err(|e| format!("`info`: {e}"))?;
+        let tracks = TracksDocument::from_json(meta.get("tracks").map_or("", String::as_str))
+            .map_err(|e| format!("`tracks`: {e}"))?;
+        let observations: Vec<FrameObservations> = match meta.get("observations") {
+            None => Vec::new(),
+            Some(text) => serde_json::from_str(text).map_err(|e| format!("`observations`: {e}"))?,
+        };
+        if !observations.is_empty() && observations.len() != tracks.frames.len() {
+            return Err(format!(
+                "{} observations for {} tracked frames",
+                observations.len(),
+                tracks.frames.len()
+            ));
+        }
+        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+        if observations
+            .iter()
+            .any(|o| !o.detected.iter().all(|p| finite(p)) || !o.crop.is_none_or(|c| finite(&c)))
+        {
+            return Err("`observations` has NaN or infinite values".into());
+        }
+        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| e.to_string())?;
         let footage = match st.tensor("frames") {
             Err(_) => None,
             Ok(t) => {
@@ -244,6 +298,9 @@ impl Session {
                     u32::try_from(*w).map_err(|_| "frames are too wide")?,
                     u32::try_from(*h).map_err(|_| "frames are too tall")?,
                 );
+                // Also when there are none: `w * h * 3` must not overflow.
+                crate::source::check_frame_size(w32, h32)
+                    .map_err(|e| format!("tensor `frames`: {e}"))?;
                 let size = w * h * 3;
                 let frames = t
                     .data()
@@ -254,35 +311,13 @@ impl Session {
                 Some(frames)
             }
         };
-        let observations: Vec<FrameObservations> = match meta.get("observations") {
-            None => Vec::new(),
-            Some(text) => serde_json::from_str(text).map_err(|e| format!("`observations`: {e}"))?,
-        };
-        if !observations.is_empty() && observations.len() != tracks.frames.len() {
-            return Err(format!(
-                "{} observations for {} tracked frames",
-                observations.len(),
-                tracks.frames.len()
-            ));
-        }
-        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
-        if observations
-            .iter()
-            .any(|o| !o.detected.iter().all(|p| finite(p)) || !o.crop.is_none_or(|c| finite(&c)))
-        {
-            return Err("`observations` has NaN or infinite values".into());
-        }
-        Ok(Self {
+        let parts = Self {
+            version,
             info,
+            tracks,
             footage,
             observations,
-            corrections: PersonalCorrections {
-                identity_shape: chw_to_uv(&ds0, n, n),
-                expression_shapes: split(&ds),
-                static_albedo: chw_to_uv(&dr0, n, n),
-                dynamic_albedo: split(&dr),
-            },
-            tracks,
-        })
+        };
+        Ok((parts, st))
     }
 }

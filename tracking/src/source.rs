@@ -171,29 +171,53 @@ pub fn is_image_path(path: &Path) -> bool {
 
 /// Decodes one image file, refusing frames above [`MAX_FRAME_PIXELS`] before allocating.
 pub fn read_image(path: &Path) -> Result<RgbImage> {
-    let decode = |reason: String| TrackingError::Decode {
-        path: path.to_owned(),
-        reason,
+    let open = || std::fs::File::open(path).map(std::io::BufReader::new);
+    decode_image_with(open).map_err(|e| match e {
+        ImageFailure::Read(e) => io_error(path)(e),
+        ImageFailure::Decode(reason) => TrackingError::Decode {
+            path: path.to_owned(),
+            reason,
+        },
+    })
+}
+
+/// Decodes an image file's bytes (what a browser or a drop hands over) with the limits of
+/// [`read_image`]; the error says why it is not a readable frame.
+pub fn decode_image(bytes: &[u8]) -> std::result::Result<RgbImage, String> {
+    decode_image_with(|| Ok(std::io::Cursor::new(bytes))).map_err(|e| match e {
+        ImageFailure::Read(e) => e.to_string(),
+        ImageFailure::Decode(reason) => reason,
+    })
+}
+
+enum ImageFailure {
+    Read(std::io::Error),
+    Decode(String),
+}
+
+/// The decoding of [`read_image`] and [`decode_image`]: the size first (refused above the
+/// limits before any pixel is allocated), then the pixels. `open` gives the data from its
+/// start each time.
+fn decode_image_with<R: std::io::BufRead + std::io::Seek>(
+    open: impl Fn() -> std::io::Result<R>,
+) -> std::result::Result<RgbImage, ImageFailure> {
+    let reader = |data: R| {
+        image::ImageReader::new(data)
+            .with_guessed_format()
+            .map_err(ImageFailure::Read)
     };
-    let reader = image::ImageReader::open(path)
-        .map_err(io_error(path))?
-        .with_guessed_format()
-        .map_err(io_error(path))?;
-    let (w, h) = reader
+    let decode = |e: image::ImageError| ImageFailure::Decode(e.to_string());
+    let (w, h) = reader(open().map_err(ImageFailure::Read)?)?
         .into_dimensions()
-        .map_err(|e| decode(e.to_string()))?;
-    check_frame_size(w, h).map_err(|e| decode(e.to_string()))?;
-    let mut reader = image::ImageReader::open(path)
-        .map_err(io_error(path))?
-        .with_guessed_format()
-        .map_err(io_error(path))?;
+        .map_err(decode)?;
+    check_frame_size(w, h).map_err(|e| ImageFailure::Decode(e.to_string()))?;
+    let mut pixels = reader(open().map_err(ImageFailure::Read)?)?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_FRAME_SIDE);
     limits.max_image_height = Some(MAX_FRAME_SIDE);
     limits.max_alloc = Some(MAX_FRAME_PIXELS * 8);
-    reader.limits(limits);
-    let image = reader.decode().map_err(|e| decode(e.to_string()))?;
-    Ok(image.to_rgb8())
+    pixels.limits(limits);
+    Ok(pixels.decode().map_err(decode)?.to_rgb8())
 }
 
 /// Refuses empty and oversized frames.
@@ -326,6 +350,11 @@ pub struct VideoInfo {
     pub frames: Option<usize>,
 }
 
+/// Frame rates of video files outside [`MIN_VIDEO_FPS`, `MAX_VIDEO_FPS`] are not believed
+/// (the next candidate, or 30, is used).
+pub const MIN_VIDEO_FPS: f64 = 0.001;
+pub const MAX_VIDEO_FPS: f64 = 1000.0;
+
 /// Reads width, height, frame rate and frame count with `ffprobe`.
 pub fn probe_video(path: &Path) -> Result<VideoInfo> {
     let decode = |reason: String| TrackingError::Decode {
@@ -346,25 +375,35 @@ pub fn probe_video(path: &Path) -> Result<VideoInfo> {
             msg.lines().next().unwrap_or("ffprobe failed").trim()
         )));
     }
-    let json: serde_json::Value =
-        serde_json::from_slice(&output.stdout).map_err(|e| decode(e.to_string()))?;
+    parse_probe_output(&output.stdout).map_err(decode)
+}
+
+/// What `ffprobe -show_entries stream=width,height,avg_frame_rate,r_frame_rate,nb_frames
+/// -of json` printed about the first video stream; the error says what is missing.
+pub fn parse_probe_output(stdout: &[u8]) -> std::result::Result<VideoInfo, String> {
+    let json: serde_json::Value = serde_json::from_slice(stdout).map_err(|e| e.to_string())?;
     let stream = json
         .get("streams")
         .and_then(|s| s.get(0))
-        .ok_or_else(|| decode("it has no video stream".into()))?;
+        .ok_or("it has no video stream")?;
+    // A size beyond u32 is refused like any oversized frame (not truncated to its low
+    // bits); a missing one reads as 0, which is refused too.
     let dim = |k: &str| {
         stream
             .get(k)
             .and_then(serde_json::Value::as_u64)
-            .unwrap_or(0) as u32
+            .map_or(0, |v| u32::try_from(v).unwrap_or(u32::MAX))
     };
     let (width, height) = (dim("width"), dim("height"));
-    check_frame_size(width, height).map_err(|e| decode(e.to_string()))?;
+    check_frame_size(width, height).map_err(|e| e.to_string())?;
+    // A rate `n/d` outside the plausible range (not finite, below one frame in 1000 s or
+    // above 1000 fps) is not used: every frame's time is its index divided by it.
     let rate = |k: &str| {
         stream.get(k).and_then(|v| v.as_str()).and_then(|s| {
             let (n, d) = s.split_once('/')?;
             let (n, d): (f64, f64) = (n.parse().ok()?, d.parse().ok()?);
-            (d > 0.0 && n > 0.0).then(|| n / d)
+            let fps = n / d;
+            (d > 0.0 && n > 0.0 && (MIN_VIDEO_FPS..=MAX_VIDEO_FPS).contains(&fps)).then_some(fps)
         })
     };
     let fps = rate("avg_frame_rate")
@@ -391,12 +430,78 @@ fn ffmpeg_missing(e: std::io::Error) -> String {
     }
 }
 
+/// The size `ffprobe -show_entries stream=width,height -of csv=p=0` printed for a live
+/// input: `width,height` on its first line.
+pub fn parse_live_size(stdout: &str) -> Option<(u32, u32)> {
+    let dims: Vec<u32> = stdout
+        .trim()
+        .lines()
+        .next()
+        .unwrap_or("")
+        .split(',')
+        .filter_map(|v| v.trim().parse().ok())
+        .collect();
+    match dims[..] {
+        [width, height] => Some((width, height)),
+        _ => None,
+    }
+}
+
+/// Frames of one size from a raw RGB byte stream (`ffmpeg -f rawvideo -pix_fmt rgb24`,
+/// rows top to bottom).
+pub struct RawFrames<R> {
+    reader: R,
+    width: u32,
+    height: u32,
+    frame_len: usize,
+}
+
+/// What [`RawFrames::next_frame`] read.
+#[derive(Debug)]
+pub enum RawFrame {
+    Frame(RgbImage),
+    /// The stream ended (a frame cut short by its end is dropped).
+    End,
+}
+
+impl<R: Read> RawFrames<R> {
+    /// Frames of `width` x `height` (refused beyond [`check_frame_size`]'s limits).
+    pub fn new(reader: R, width: u32, height: u32) -> Result<Self> {
+        check_frame_size(width, height)?;
+        Ok(Self {
+            reader,
+            width,
+            height,
+            frame_len: width as usize * height as usize * 3,
+        })
+    }
+
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// The next whole frame; reads are retried when interrupted.
+    pub fn next_frame(&mut self) -> std::io::Result<RawFrame> {
+        let mut buf = vec![0u8; self.frame_len];
+        let mut filled = 0;
+        while filled < buf.len() {
+            match self.reader.read(&mut buf[filled..]) {
+                Ok(0) => return Ok(RawFrame::End),
+                Ok(n) => filled += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        RgbImage::from_raw(self.width, self.height, buf)
+            .map(RawFrame::Frame)
+            .ok_or_else(|| std::io::Error::other("frame buffer of the wrong size"))
+    }
+}
+
 /// Raw RGB frames from an `ffmpeg` child process.
 pub struct FfmpegSource {
     child: Child,
-    stdout: ChildStdout,
-    width: u32,
-    height: u32,
+    frames_in: RawFrames<ChildStdout>,
     fps: f64,
     frames: Option<usize>,
     next: usize,
@@ -441,16 +546,8 @@ impl FfmpegSource {
                 path: name.clone().into(),
                 reason: ffmpeg_missing(e),
             })?;
-        let text = String::from_utf8_lossy(&probe.stdout);
-        let dims: Vec<u32> = text
-            .trim()
-            .lines()
-            .next()
-            .unwrap_or("")
-            .split(',')
-            .filter_map(|v| v.trim().parse().ok())
-            .collect();
-        if !probe.status.success() || dims.len() != 2 {
+        let size = parse_live_size(&String::from_utf8_lossy(&probe.stdout));
+        let Some((width, height)) = size.filter(|_| probe.status.success()) else {
             return Err(TrackingError::Decode {
                 path: name.into(),
                 reason: format!(
@@ -462,8 +559,8 @@ impl FfmpegSource {
                         .trim()
                 ),
             });
-        }
-        check_frame_size(dims[0], dims[1])?;
+        };
+        check_frame_size(width, height)?;
         let mut cmd = Command::new("ffmpeg");
         cmd.args(["-nostdin", "-v", "error", "-f", format, "-i", input]);
         let fps = if fps.is_finite() && fps > 0.0 {
@@ -471,7 +568,7 @@ impl FfmpegSource {
         } else {
             30.0
         };
-        Self::spawn(cmd, dims[0], dims[1], fps, None, name, true)
+        Self::spawn(cmd, width, height, fps, None, name, true)
     }
 
     fn spawn(
@@ -495,11 +592,17 @@ impl FfmpegSource {
             path: name.clone().into(),
             reason: "ffmpeg gave no output pipe".into(),
         })?;
+        let frames_in = match RawFrames::new(stdout, width, height) {
+            Ok(frames) => frames,
+            Err(e) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                return Err(e);
+            }
+        };
         Ok(Self {
             child,
-            stdout,
-            width,
-            height,
+            frames_in,
             fps,
             frames,
             next: 0,
@@ -510,7 +613,7 @@ impl FfmpegSource {
     }
 
     pub fn size(&self) -> (u32, u32) {
-        (self.width, self.height)
+        self.frames_in.size()
     }
 
     fn stderr_tail(&mut self) -> String {
@@ -527,59 +630,46 @@ impl FrameSource for FfmpegSource {
         if self.finished {
             return Ok(Next::End);
         }
-        let len = self.width as usize * self.height as usize * 3;
-        let mut buf = vec![0u8; len];
-        let mut filled = 0;
-        while filled < len {
-            match self.stdout.read(&mut buf[filled..]) {
-                Ok(0) => break,
-                Ok(n) => filled += n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => {
-                    self.finished = true;
+        let image = match self.frames_in.next_frame() {
+            Ok(RawFrame::Frame(image)) => image,
+            Ok(RawFrame::End) => {
+                self.finished = true;
+                let status = self.child.wait().ok();
+                let tail = self.stderr_tail();
+                let failed = status.is_some_and(|s| !s.success());
+                if self.next == 0 || failed {
                     return Err(TrackingError::Decode {
                         path: self.name.clone().into(),
-                        reason: format!("reading frames failed: {e}"),
+                        reason: if self.next == 0 {
+                            format!(
+                                "no frame could be decoded ({})",
+                                if tail.is_empty() {
+                                    "empty video"
+                                } else {
+                                    &tail
+                                }
+                            )
+                        } else {
+                            format!("decoding stopped after {} frames ({tail})", self.next)
+                        },
                     });
                 }
+                return Ok(Next::End);
             }
-        }
-        if filled < len {
-            self.finished = true;
-            let status = self.child.wait().ok();
-            let tail = self.stderr_tail();
-            let failed = status.is_some_and(|s| !s.success());
-            if self.next == 0 || failed {
+            Err(e) => {
+                self.finished = true;
                 return Err(TrackingError::Decode {
                     path: self.name.clone().into(),
-                    reason: if self.next == 0 {
-                        format!(
-                            "no frame could be decoded ({})",
-                            if tail.is_empty() {
-                                "empty video"
-                            } else {
-                                &tail
-                            }
-                        )
-                    } else {
-                        format!("decoding stopped after {} frames ({tail})", self.next)
-                    },
+                    reason: format!("reading frames failed: {e}"),
                 });
             }
-            return Ok(Next::End);
-        }
+        };
         let index = self.next;
         self.next += 1;
         let time_s = match self.live_start {
             Some(start) => start.elapsed().as_secs_f64(),
             None => index as f64 / self.fps,
         };
-        let image = RgbImage::from_raw(self.width, self.height, buf).ok_or_else(|| {
-            TrackingError::Decode {
-                path: self.name.clone().into(),
-                reason: "frame buffer of the wrong size".into(),
-            }
-        })?;
         Ok(Next::Frame(Frame {
             index,
             time_s,
