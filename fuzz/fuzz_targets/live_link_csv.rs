@@ -1,0 +1,20 @@
+#![no_main]
+//! `likeness_fuzzing::live_link_csv` under libFuzzer, with the crate's structure-aware edits mixed
+//! into libFuzzer's own mutations.
+
+use libfuzzer_sys::{fuzz_mutator, fuzz_target, fuzzer_mutate};
+use likeness_fuzzing::Target;
+use likeness_fuzzing::mutate::libfuzzer_mutate;
+
+fuzz_target!(|data: &[u8]| likeness_fuzzing::live_link_csv(data));
+
+fuzz_mutator!(|data: &mut [u8], size: usize, max_size: usize, seed: u32| {
+    libfuzzer_mutate(
+        Target::LiveLinkCsv.format(),
+        data,
+        size,
+        max_size,
+        seed,
+        fuzzer_mutate,
+    )
+});
