@@ -279,14 +279,22 @@ impl ImageFiles {
 
 /// Orders strings with embedded numbers by value.
 pub fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
-    fn chunks(s: &str) -> Vec<(bool, String)> {
-        let mut out: Vec<(bool, String)> = Vec::new();
-        for c in s.chars() {
+    // Runs of digits and of other characters, as slices of `s`: sorting a large folder
+    // compares names O(n log n) times, so no allocation per run.
+    fn chunks(s: &str) -> Vec<(bool, &str)> {
+        let mut out: Vec<(bool, &str)> = Vec::new();
+        let mut start = 0;
+        let mut run_is_digits = None;
+        for (i, c) in s.char_indices() {
             let digit = c.is_ascii_digit();
-            match out.last_mut() {
-                Some((d, text)) if *d == digit => text.push(c),
-                _ => out.push((digit, c.to_string())),
+            if run_is_digits.is_some_and(|d| d != digit) {
+                out.push((!digit, &s[start..i]));
+                start = i;
             }
+            run_is_digits = Some(digit);
+        }
+        if let Some(digit) = run_is_digits {
+            out.push((digit, &s[start..]));
         }
         out
     }
