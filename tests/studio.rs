@@ -1221,37 +1221,118 @@ fn a_window_without_a_gpu_draws_lighter_shapes_unless_asked_not_to() {
 }
 
 #[test]
-fn a_hostile_puppet_dropped_on_the_studio_is_a_toast_and_the_studio_goes_on() {
-    let dir = std::env::temp_dir().join(format!("likeness-studio-hostile-{}", std::process::id()));
+fn hostile_puppets_dropped_on_the_studio_are_toasts_and_the_studio_goes_on() {
+    let mut harness = harness();
+    let dir = std::env::temp_dir().join(format!("likeness-hostile-drop-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    // The smallest file that panicked the `gltf` crate: a POSITION attribute, no accessors.
+    // The 160-byte file that ended the studio inside the `gltf` crate (a POSITION attribute
+    // and no `accessors` at all), a GLB the fuzzer found, and a puppet whose buffer is
+    // /dev/zero (read without bound before).
     let crash = dir.join("crash.gltf");
     std::fs::write(
         &crash,
-        br#"{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}]}"#,
+        br#"{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]}"#,
     )
     .unwrap();
-    let mut harness = harness();
+    let fuzzed = dir.join("fuzzed.glb");
+    std::fs::copy(
+        concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../fuzz/regressions/puppet/glb-length-below-header.glb"
+        ),
+        &fuzzed,
+    )
+    .unwrap();
+    let zero = dir.join("zero.gltf");
+    std::fs::write(
+        &zero,
+        br#"{"asset":{"version":"2.0"},"buffers":[{"uri":"/dev/zero","byteLength":1000000}],"bufferViews":[{"buffer":0,"byteLength":36}],"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,1]}],"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]}"#,
+    )
+    .unwrap();
+    // A good puppet first, dropped like the others.
+    let good = dir.join("good.glb");
+    std::fs::copy(likeness::puppet_panel::DEMO_PUPPET, &good).unwrap();
     harness
         .input_mut()
         .dropped_files
-        .push(Arc::new(DroppedPath(crash)));
-    harness.run_steps(3);
-    let error = harness
-        .state()
-        .state
-        .notices
-        .latest_error()
-        .map(str::to_owned)
-        .expect("the bad puppet is reported");
-    assert!(
-        error.contains("crash.gltf") && error.contains("accessor"),
-        "{error}"
-    );
-    // The studio still draws and answers.
+        .push(Arc::new(DroppedPath(good.clone())));
+    harness.run_steps(2);
+    let shown = Some("loaded good.glb".to_owned());
+    assert_eq!(harness.state().puppet_panel.status, shown);
+    for (file, expect) in [(&crash, "POSITION"), (&fuzzed, "GLB"), (&zero, "/dev/zero")] {
+        let before = harness.state().state.notices.all().len();
+        harness
+            .input_mut()
+            .dropped_files
+            .push(Arc::new(DroppedPath(file.clone())));
+        harness.run_steps(2);
+        let notices = harness.state().state.notices.all();
+        assert!(notices.len() > before, "{}: no notice", file.display());
+        let error = harness
+            .state()
+            .state
+            .notices
+            .latest_error()
+            .unwrap_or_default();
+        let name = file.file_name().unwrap().to_string_lossy();
+        assert!(
+            error.contains(expect) && error.contains(name.as_ref()),
+            "{}: the notice names the file and what is wrong: {error}",
+            file.display()
+        );
+        assert!(
+            harness.state().puppet_panel.puppet.is_some()
+                && harness.state().puppet_panel.status == shown,
+            "{}: the puppet shown before stays",
+            file.display()
+        );
+    }
+    // The studio went on: it still draws and answers, and the same puppet dropped again
+    // loads again.
     harness.get_by_label("Albedo").click();
     harness.run_steps(2);
     assert_eq!(harness.state().state.view, StudioView::Albedo);
+    harness.state_mut().puppet_panel.status = None;
+    harness
+        .input_mut()
+        .dropped_files
+        .push(Arc::new(DroppedPath(good)));
+    harness.run_steps(2);
+    assert_eq!(harness.state().puppet_panel.status, shown);
+    // Exporting into a puppet's folder never overwrites a file the puppet names: a `.gltf`
+    // whose buffer is called like the Live Link export.
+    let glb = std::fs::read(likeness::puppet_panel::DEMO_PUPPET).expect("pip.glb");
+    let raw = retarget::puppet::split_gltf(&glb, std::path::Path::new("pip.glb")).expect("split");
+    let bin = raw.bin.expect("a binary chunk").into_owned();
+    let mut json = raw.json;
+    let buffer_name = ExportKind::LiveLinkCsv.file_name(None);
+    json["buffers"] = serde_json::json!([{"uri": buffer_name, "byteLength": bin.len()}]);
+    let named = dir.join("named.gltf");
+    std::fs::write(&named, serde_json::to_vec(&json).unwrap()).unwrap();
+    std::fs::write(dir.join(&buffer_name), &bin).unwrap();
+    let loaded = likeness::puppet_panel::LoadedPuppet::load(&named).expect("the .gltf loads");
+    let puppet = Some((
+        loaded.path.clone(),
+        loaded.puppet.clone(),
+        loaded.retargeter.clone(),
+    ));
+    let err = likeness::puppet_panel::export(
+        ExportKind::LiveLinkCsv,
+        puppet,
+        &scene(),
+        &demo_session(),
+        &dir,
+    )
+    .expect_err("the puppet's buffer is not an export");
+    assert!(
+        format!("{err:#}").contains("the puppet's buffer 0"),
+        "{err:#}"
+    );
+    assert_eq!(
+        std::fs::read(dir.join(&buffer_name)).unwrap(),
+        bin,
+        "the buffer kept"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

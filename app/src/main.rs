@@ -529,6 +529,12 @@ fn refuse_overwriting_inputs(command: &Command, facemodel: Option<&std::path::Pa
                     retarget::mapping::sidecar_path(puppet),
                 )),
             }
+            // A `.gltf`'s buffers and images are inputs too.
+            inputs.extend(
+                retarget::puppet::external_files(puppet)
+                    .into_iter()
+                    .map(|(what, path)| (format!("the puppet's {what}"), path)),
+            );
             return refuse_same_files(&inputs, &[("--out", out.as_path())]);
         }
         Command::Track { out, csv, .. } => {

@@ -781,6 +781,23 @@ pub fn export(
 ) -> Result<PathBuf> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let out = dir.join(kind.file_name(puppet.as_ref().map(|p| p.0.as_path())));
+    // Exporting into the puppet's folder must not overwrite the puppet or a file it names.
+    if let Some((path, ..)) = &puppet {
+        let inputs = std::iter::once(("the puppet".to_owned(), path.clone())).chain(
+            retarget::puppet::external_files(path)
+                .into_iter()
+                .map(|(what, file)| (format!("the puppet's {what}"), file)),
+        );
+        for (what, input) in inputs {
+            if files::same_file(&out, &input) {
+                bail!(
+                    "the export {} is the same file as {what} ({}): choose another folder",
+                    out.display(),
+                    input.display()
+                );
+            }
+        }
+    }
     let tracks = session.tracks();
     match kind {
         ExportKind::Animation => {

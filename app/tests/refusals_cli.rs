@@ -144,6 +144,49 @@ fn retarget_refuses_an_output_that_is_an_input() {
 }
 
 #[test]
+fn retarget_refuses_an_output_that_is_a_file_the_puppet_names() {
+    let dir = out_dir("same-retarget-bin");
+    let tracks = dir.join("tracks.json");
+    std::fs::write(&tracks, TRACKS).expect("write");
+    // The demo puppet as a `.gltf` whose buffer is the file `mesh.bin` beside it.
+    let glb = std::fs::read(repo("assets/puppets/pip.glb")).expect("pip.glb");
+    let raw = retarget::puppet::split_gltf(&glb, Path::new("pip.glb")).expect("split");
+    let bin = raw.bin.expect("a binary chunk").into_owned();
+    let mut json = raw.json;
+    json["buffers"] = serde_json::json!([{"uri": "mesh.bin", "byteLength": bin.len()}]);
+    let puppet = dir.join("pip.gltf");
+    std::fs::write(&puppet, serde_json::to_vec(&json).expect("JSON")).expect("write");
+    let mesh = dir.join("mesh.bin");
+    std::fs::write(&mesh, &bin).expect("write");
+    // It loads and exports as it is.
+    let o = likeness(&[
+        "retarget",
+        "--tracks",
+        s(&tracks),
+        "--puppet",
+        s(&puppet),
+        "--out",
+        s(&dir.join("anim.glb")),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    // Its buffer, spelled through `sub/..`, is not an output.
+    std::fs::create_dir_all(dir.join("sub")).expect("dir");
+    refused(
+        &[
+            "retarget",
+            "--tracks",
+            s(&tracks),
+            "--puppet",
+            s(&puppet),
+            "--out",
+            s(&dir.join("sub/../mesh.bin")),
+        ],
+        &["--out", "the puppet's buffer 0 (mesh.bin)", "same file"],
+    );
+    assert_eq!(std::fs::read(&mesh).expect("read"), bin, "the buffer kept");
+}
+
+#[test]
 fn track_and_personalize_refuse_an_output_that_is_an_input() {
     let dir = out_dir("same-track");
     let frames = dir.join("frames");

@@ -180,6 +180,39 @@ pub fn split_gltf<'a>(bytes: &'a [u8], path: &Path) -> Result<RawGltf<'a>> {
     })
 }
 
+/// The files beside the puppet at `path` that it names (external buffers and images), each
+/// with what names it (`buffer 0 (mesh.bin)`): a command writing beside a puppet must not
+/// overwrite them, and comparing with the puppet file alone would miss a `.gltf`'s `.bin`.
+/// URIs the loader would refuse (a scheme, an absolute path, `..`) name nothing here, and a
+/// file that cannot be read or split names none: loading it reports why.
+pub fn external_files(path: &Path) -> Vec<(String, PathBuf)> {
+    let readable = std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() <= MAX_FILE_BYTES);
+    let Some(bytes) = readable.then(|| std::fs::read(path).ok()).flatten() else {
+        return Vec::new();
+    };
+    let Ok(raw) = split_gltf(&bytes, path) else {
+        return Vec::new();
+    };
+    let folder = path.parent().unwrap_or(Path::new(""));
+    let mut files = Vec::new();
+    for kind in ["buffers", "images"] {
+        let entries = raw.json.get(kind).and_then(Value::as_array);
+        for (index, entry) in entries.into_iter().flatten().enumerate() {
+            let Some(uri) = entry.get("uri").and_then(Value::as_str) else {
+                continue;
+            };
+            if uri.starts_with("data:") {
+                continue;
+            }
+            if let Ok(relative) = uri::relative_path(uri) {
+                let what = format!("{} {index} ({uri})", kind.trim_end_matches('s'));
+                files.push((what, folder.join(relative)));
+            }
+        }
+    }
+    files
+}
+
 /// Required extensions this loader does not honour, by name.
 pub fn unsupported_required_extensions(json: &Value) -> Vec<String> {
     json.get("extensionsRequired")

@@ -508,3 +508,38 @@ fn what_the_fuzzer_found_in_the_loader_and_the_driver_is_handled() {
             .is_ok()
     );
 }
+
+#[test]
+fn the_files_a_puppet_names_are_listed_as_the_loader_resolves_them() {
+    let mut scene = Scene::new("names").with_texture("tex%20ture.png");
+    let buffers = scene.json["buffers"].as_array_mut().unwrap();
+    buffers.push(json!({"uri": "data:application/octet-stream;base64,AAAA", "byteLength": 3}));
+    buffers.push(json!({"uri": "../secret.txt", "byteLength": 3}));
+    buffers.push(json!({"uri": "/etc/passwd", "byteLength": 3}));
+    buffers.push(json!({"uri": "sub/./more.bin", "byteLength": 3}));
+    let path = scene.write();
+    let named = retarget::puppet::external_files(&path);
+    let expected = vec![
+        (
+            "buffer 0 (mesh.bin)".to_owned(),
+            scene.puppet_dir.join("mesh.bin"),
+        ),
+        (
+            "buffer 4 (sub/./more.bin)".to_owned(),
+            scene.puppet_dir.join("sub").join("more.bin"),
+        ),
+        (
+            "image 0 (tex%20ture.png)".to_owned(),
+            scene.puppet_dir.join("tex ture.png"),
+        ),
+    ];
+    assert_eq!(named, expected);
+    // A GLB names what its JSON chunk names; a file that is not a puppet names nothing.
+    let glb = glb_from(&scene.json, Vec::new());
+    let glb_path = scene.puppet_dir.join("named.glb");
+    std::fs::write(&glb_path, glb).unwrap();
+    assert_eq!(retarget::puppet::external_files(&glb_path), expected);
+    std::fs::write(&glb_path, b"not a puppet").unwrap();
+    assert!(retarget::puppet::external_files(&glb_path).is_empty());
+    assert!(retarget::puppet::external_files(&scene.puppet_dir.join("missing.gltf")).is_empty());
+}
