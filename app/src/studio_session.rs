@@ -375,34 +375,11 @@ pub fn correction_sizes_mm(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use face::template::{Part, Template};
-    use glam::Vec3;
 
     /// A face model on a four-vertex template: `from_file` needs a model, not the ICT
     /// FaceKit's 26k vertices.
     fn tiny_model() -> FaceModel {
-        let quad = [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]];
-        FaceModel::new(Template {
-            neutral: quad.iter().map(|[x, y]| Vec3::new(*x, *y, 0.0)).collect(),
-            expression_deltas: vec![Vec3::new(0.0, 0.01, 0.0); NUM_BLENDSHAPES * 4],
-            identity_deltas: Vec::new(),
-            identity_count: 0,
-            uvs: quad
-                .iter()
-                .map(|[x, y]| Vec2::new(0.5 + 0.4 * x, 0.5 + 0.4 * y))
-                .collect(),
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            triangle_uvs: vec![[0, 1, 2], [0, 2, 3]],
-            triangle_polygon: vec![0, 0],
-            parts: vec![Part {
-                name: "face".into(),
-                vertices: 0..4,
-                polygons: 0..1,
-            }],
-            materials: Vec::new(),
-            landmarks_68: [0; face::NUM_LANDMARKS],
-            source: "tiny".into(),
-        })
+        FaceModel::new(face::Template::one_quad("tiny"))
     }
 
     /// A `likeness personalize` session (no footage) of `count` frames of `width` x

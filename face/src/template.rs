@@ -111,6 +111,36 @@ pub(crate) fn test_template() -> Template {
 }
 
 impl Template {
+    /// A template of one quad (four vertices in the face's UV tile, 0.1..0.9), each
+    /// blendshape a small offset of its own and no identity components: for tests and
+    /// fuzzing of readers that need a model, not the ICT FaceKit's 26k vertices.
+    pub fn one_quad(source: &str) -> Self {
+        let corners = [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]];
+        Self {
+            neutral: corners.iter().map(|&[x, y]| Vec3::new(x, y, 0.0)).collect(),
+            expression_deltas: (0..NUM_BLENDSHAPES * 4)
+                .map(|k| Vec3::new(0.0, 0.01 * ((k / 4 + k % 4) % 3) as f32, 0.0))
+                .collect(),
+            identity_deltas: Vec::new(),
+            identity_count: 0,
+            uvs: corners
+                .iter()
+                .map(|&[x, y]| Vec2::new(0.5 + 0.4 * x, 0.5 + 0.4 * y))
+                .collect(),
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            triangle_uvs: vec![[0, 1, 2], [0, 2, 3]],
+            triangle_polygon: vec![0, 0],
+            parts: vec![Part {
+                name: "face".into(),
+                vertices: 0..4,
+                polygons: 0..1,
+            }],
+            materials: Vec::new(),
+            landmarks_68: [0; NUM_LANDMARKS],
+            source: source.into(),
+        }
+    }
+
     /// Number of vertices V.
     pub fn vertex_count(&self) -> usize {
         self.neutral.len()

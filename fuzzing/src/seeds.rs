@@ -687,41 +687,8 @@ fn video() -> Vec<(&'static str, Vec<u8>)> {
 /// studio's session reader: it needs a model, not the ICT FaceKit's 26k vertices.
 #[cfg(feature = "studio")]
 pub fn tiny_face_model() -> &'static face::FaceModel {
-    use face::template::{Part, Template};
-    use glam::{Vec2, Vec3};
     static MODEL: std::sync::OnceLock<face::FaceModel> = std::sync::OnceLock::new();
     MODEL.get_or_init(|| {
-        let neutral = vec![
-            Vec3::new(-1.0, -1.0, 0.0),
-            Vec3::new(1.0, -1.0, 0.0),
-            Vec3::new(1.0, 1.0, 0.0),
-            Vec3::new(-1.0, 1.0, 0.0),
-        ];
-        let expression_deltas = (0..face::NUM_BLENDSHAPES)
-            .flat_map(|i| (0..4).map(move |v| Vec3::new(0.0, 0.01 * ((i + v) % 3) as f32, 0.0)))
-            .collect();
-        face::FaceModel::new(Template {
-            neutral,
-            expression_deltas,
-            identity_deltas: Vec::new(),
-            identity_count: 0,
-            uvs: vec![
-                Vec2::new(0.1, 0.1),
-                Vec2::new(0.9, 0.1),
-                Vec2::new(0.9, 0.9),
-                Vec2::new(0.1, 0.9),
-            ],
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            triangle_uvs: vec![[0, 1, 2], [0, 2, 3]],
-            triangle_polygon: vec![0, 0],
-            parts: vec![Part {
-                name: "face".into(),
-                vertices: 0..4,
-                polygons: 0..1,
-            }],
-            materials: Vec::new(),
-            landmarks_68: [0; face::NUM_LANDMARKS],
-            source: "likeness-fuzzing tiny template".into(),
-        })
+        face::FaceModel::new(face::Template::one_quad("likeness-fuzzing tiny template"))
     })
 }
