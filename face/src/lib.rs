@@ -13,6 +13,7 @@
 pub mod albedo;
 pub mod camera;
 pub mod error;
+pub mod gaze;
 pub mod geometry;
 pub mod ict_import;
 pub mod masks;

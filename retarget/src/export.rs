@@ -282,10 +282,10 @@ fn placeholder_png() -> Vec<u8> {
 
 // --- Live Link Face CSV ----------------------------------------------------------------
 
-/// Largest eye rotation the eyeLook weights stand for, in degrees (ARKit's gaze shapes
-/// reach about this far).
-pub const EYE_YAW_RANGE_DEG: f32 = 30.0;
-pub const EYE_PITCH_RANGE_DEG: f32 = 25.0;
+/// Largest eye rotation the eyeLook weights stand for, in degrees: the gaze the studio
+/// draws and the training data shows (`face::gaze`).
+pub const EYE_YAW_RANGE_DEG: f32 = face::gaze::GAZE_YAW_DEG_PER_UNIT;
+pub const EYE_PITCH_RANGE_DEG: f32 = face::gaze::GAZE_PITCH_DEG_PER_UNIT;
 /// Live Link Face timecodes count frames at this rate.
 pub const LIVE_LINK_FPS: f32 = 60.0;
 /// Value columns after `Timecode` and `BlendShapeCount`: 52 shapes, head and eyes.

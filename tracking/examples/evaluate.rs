@@ -1,6 +1,8 @@
-//! Accuracy tables: expression MAE, landmark NME and pose error on the held-out synthetic
-//! clips for TrackNet alone, with refinement, with the personalized model and with
-//! smoothing; and on the real face crop in ../shared/testdata, how far the model's
+//! Accuracy tables: expression MAE (all channels and the visible ones, beside w = 0 and
+//! each channel's mean on the same frames), landmark NME (box and inter-ocular) and pose
+//! error on the held-out synthetic clips for TrackNet alone, with refinement, with the
+//! personalized model and with smoothing, and per channel (MAE, correlation, F1) for the
+//! first two; and on the real face crop in ../shared/testdata, how far the model's
 //! landmarks are from OpenSeeFace's with and without refinement.
 //!
 //! `cargo run --release -p tracking --example evaluate [-- --backend tract]
@@ -76,6 +78,10 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         default_clips_dir().display()
     );
     println!("{}", evaluation.table());
+    for (row, report) in evaluation.rows.iter().zip(&evaluation.reports).take(2) {
+        println!("### Per channel: {}\n", row.0);
+        println!("{}", report.table());
+    }
     let crop = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/testdata/faces/openseeface-raw1.png");
     let agreement = real_crop_agreement(face, &crop, &config)?;

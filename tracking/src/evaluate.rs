@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use face::{FaceModel, NUM_BLENDSHAPES, NUM_LANDMARKS};
+use face::{FaceModel, ICT_NAMES, NUM_BLENDSHAPES, NUM_LANDMARKS, Template};
 use serde::Deserialize;
 
 use crate::error::{Result, TrackingError, io_error};
@@ -127,8 +127,12 @@ impl Clip {
 pub struct Metrics {
     /// Mean |w - w_true| over channels and frames with a face.
     pub expression_mae: f64,
+    /// Mean |w - w_true| over the visible channels ([`visible_channels`]).
+    pub expression_mae_visible: f64,
     /// Mean landmark distance / sqrt(true box area), over frames with a face.
     pub landmark_nme: f64,
+    /// Mean landmark distance / the true outer inter-ocular distance (points 36 and 45).
+    pub landmark_nme_iod: f64,
     /// Mean |yaw|, |pitch|, |roll| error in degrees.
     pub pose_error_deg: [f64; 3],
     /// Frames with a face found / all frames.
@@ -145,6 +149,11 @@ pub struct Metrics {
 struct Accumulator {
     mae: f64,
     nme: f64,
+    nme_iod: f64,
+    /// Every frame's predicted and true weights (frames with a face), for the per-channel
+    /// report.
+    predicted: Vec<[f32; NUM_BLENDSHAPES]>,
+    truth: Vec<[f32; NUM_BLENDSHAPES]>,
     pose: [f64; 3],
     with_face: usize,
     all: usize,
@@ -188,6 +197,18 @@ impl Accumulator {
                 / (NUM_LANDMARKS as f64 * norm);
         }
         self.with_face += 1;
+        let weights = |w: &[f32]| std::array::from_fn(|i| w.get(i).copied().unwrap_or(0.0));
+        self.predicted.push(weights(&t.weights));
+        self.truth.push(weights(&truth.weights));
+        let iod = glam::Vec2::from(truth.landmarks_68[OUTER_EYE_CORNERS.0])
+            .distance(glam::Vec2::from(truth.landmarks_68[OUTER_EYE_CORNERS.1]));
+        self.nme_iod += t
+            .landmarks_68
+            .iter()
+            .zip(&truth.landmarks_68)
+            .map(|(a, b)| f64::from(glam::Vec2::from(*a).distance(glam::Vec2::from(*b))))
+            .sum::<f64>()
+            / (NUM_LANDMARKS as f64 * f64::from(iod).max(1e-6));
         self.mae += t
             .weights
             .iter()
@@ -216,17 +237,197 @@ impl Accumulator {
         self.previous = None;
     }
 
-    fn finish(&self) -> Metrics {
+    fn finish(&self, visible: &[bool; NUM_BLENDSHAPES]) -> (Metrics, ExpressionReport) {
         let n = self.with_face.max(1) as f64;
-        Metrics {
+        let report = expression_report(&self.predicted, &self.truth, visible);
+        let metrics = Metrics {
             expression_mae: self.mae / n,
+            expression_mae_visible: report.mae_visible[0],
             landmark_nme: self.nme / n,
+            landmark_nme_iod: self.nme_iod / n,
             pose_error_deg: self.pose.map(|p| p / n),
             detected: self.with_face as f64 / self.all.max(1) as f64,
             frames: self.all,
             weight_jitter: self.jitter_w / self.pairs.max(1) as f64,
             landmark_jitter: self.jitter_lm / self.pairs.max(1) as f64,
+        };
+        (metrics, report)
+    }
+}
+
+/// The outer eye corners of the 68-point layout, the usual inter-ocular normaliser.
+pub const OUTER_EYE_CORNERS: (usize, usize) = (36, 45);
+/// A channel counts as visible when, at w = 1 on the template, some face or eyeball vertex
+/// moves at least this many pixels at the synthetic people's nominal framing (the face
+/// `NOMINAL_FACE_FILL` of a 128 px image): the training evaluation's rule
+/// (`training/likeness_train/metrics.py`).
+pub const VISIBLE_MIN_PX: f32 = 1.0;
+pub const NOMINAL_FACE_FILL: f32 = 0.85;
+pub const NOMINAL_IMAGE_PX: f32 = 128.0;
+/// w above this counts as "the shape is shown" (activation F1).
+pub const ACTIVE_THRESHOLD: f32 = 0.3;
+
+/// The largest image motion in pixels of each blendshape at w = 1 on the template (face
+/// and eyeballs, the eyes turned by [`face::gaze`]) at the nominal framing.
+pub fn channel_motion_px(template: &Template) -> [f32; NUM_BLENDSHAPES] {
+    let face_end = template
+        .parts
+        .iter()
+        .find(|p| p.name == "face")
+        .map_or(template.vertex_count(), |p| p.vertices.end as usize);
+    let (low, high) = template.neutral[..face_end]
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(lo, hi), v| {
+            (lo.min(v.y), hi.max(v.y))
+        });
+    let pixels_per_cm = NOMINAL_FACE_FILL * NOMINAL_IMAGE_PX / (high - low).max(1e-6);
+    let eyes = face::gaze::Eyes::new(template, &template.neutral);
+    let shown = |v: usize| {
+        v < face_end
+            || eyes
+                .as_ref()
+                .is_some_and(|e| e.ranges.iter().any(|r| r.contains(&v)))
+    };
+    std::array::from_fn(|i| {
+        let mut moved: Vec<glam::Vec3> = template
+            .neutral
+            .iter()
+            .zip(template.expression_delta(i))
+            .map(|(p, d)| *p + *d)
+            .collect();
+        if let Some(eyes) = &eyes {
+            let mut one_hot = [0.0; NUM_BLENDSHAPES];
+            one_hot[i] = 1.0;
+            eyes.turn(&one_hot, &mut moved, None);
         }
+        moved
+            .iter()
+            .zip(&template.neutral)
+            .enumerate()
+            .filter(|(v, _)| shown(*v))
+            .map(|(_, (a, b))| a.distance(*b))
+            .fold(0.0, f32::max)
+            * pixels_per_cm
+    })
+}
+
+/// The channels an image can show ([`VISIBLE_MIN_PX`]).
+pub fn visible_channels(template: &Template) -> [bool; NUM_BLENDSHAPES] {
+    channel_motion_px(template).map(|px| px >= VISIBLE_MIN_PX)
+}
+
+/// One channel's accuracy beside the trivial predictors on the same frames.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ChannelReport {
+    pub name: &'static str,
+    pub mae: f64,
+    pub mae_zero: f64,
+    pub mae_constant_mean: f64,
+    /// Pearson correlation with the truth (0 where either side is constant).
+    pub correlation: f64,
+    /// F1 of "w > ACTIVE_THRESHOLD"; `None` where neither side is ever active.
+    pub f1: Option<f64>,
+    pub visible: bool,
+}
+
+/// Expression accuracy: MAE over all channels and over the visible ones for the prediction,
+/// w = 0 and w = each channel's mean over these frames (in that order), and per channel.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExpressionReport {
+    pub mae_all: [f64; 3],
+    pub mae_visible: [f64; 3],
+    pub channels: Vec<ChannelReport>,
+}
+
+/// The report of `predicted` against `truth` (the same frames).
+pub fn expression_report(
+    predicted: &[[f32; NUM_BLENDSHAPES]],
+    truth: &[[f32; NUM_BLENDSHAPES]],
+    visible: &[bool; NUM_BLENDSHAPES],
+) -> ExpressionReport {
+    let n = predicted.len().min(truth.len());
+    let frames = n.max(1) as f64;
+    let channels: Vec<ChannelReport> = (0..NUM_BLENDSHAPES)
+        .map(|i| {
+            let p: Vec<f64> = predicted[..n].iter().map(|w| f64::from(w[i])).collect();
+            let t: Vec<f64> = truth[..n].iter().map(|w| f64::from(w[i])).collect();
+            let mean = |x: &[f64]| x.iter().sum::<f64>() / frames;
+            let (mp, mt) = (mean(&p), mean(&t));
+            let mae = |c: &dyn Fn(usize) -> f64| {
+                (0..n).map(|k| (c(k) - t[k]).abs()).sum::<f64>() / frames
+            };
+            let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+            for k in 0..n {
+                let (a, b) = (p[k] - mp, t[k] - mt);
+                sab += a * b;
+                saa += a * a;
+                sbb += b * b;
+            }
+            let denominator = (saa * sbb).sqrt();
+            let threshold = f64::from(ACTIVE_THRESHOLD);
+            let (found, real) = (
+                p.iter().filter(|&&x| x > threshold).count(),
+                t.iter().filter(|&&x| x > threshold).count(),
+            );
+            let both = (0..n)
+                .filter(|&k| p[k] > threshold && t[k] > threshold)
+                .count();
+            ChannelReport {
+                name: ICT_NAMES[i],
+                mae: mae(&|k| p[k]),
+                mae_zero: mae(&|_| 0.0),
+                mae_constant_mean: mae(&|_| mt),
+                correlation: if denominator > 0.0 {
+                    sab / denominator
+                } else {
+                    0.0
+                },
+                f1: (found + real > 0).then(|| 2.0 * both as f64 / (found + real) as f64),
+                visible: visible[i],
+            }
+        })
+        .collect();
+    let average = |pick: &dyn Fn(&ChannelReport) -> f64, only_visible: bool| {
+        let chosen: Vec<f64> = channels
+            .iter()
+            .filter(|c| c.visible || !only_visible)
+            .map(pick)
+            .collect();
+        chosen.iter().sum::<f64>() / chosen.len().max(1) as f64
+    };
+    let three = |only_visible: bool| {
+        [
+            average(&|c| c.mae, only_visible),
+            average(&|c| c.mae_zero, only_visible),
+            average(&|c| c.mae_constant_mean, only_visible),
+        ]
+    };
+    ExpressionReport {
+        mae_all: three(false),
+        mae_visible: three(true),
+        channels,
+    }
+}
+
+impl ExpressionReport {
+    /// A Markdown table, one row per channel.
+    pub fn table(&self) -> String {
+        let mut out = String::from(
+            "| channel | MAE | w = 0 | constant mean | correlation | F1 (w > 0.3) |\n|---|---|---|---|---|---|\n",
+        );
+        for c in &self.channels {
+            let f1 = c.f1.map_or("-".to_string(), |f| format!("{f:.2}"));
+            let name = if c.visible {
+                c.name.to_string()
+            } else {
+                format!("{} (not visible)", c.name)
+            };
+            out.push_str(&format!(
+                "| {name} | {:.3} | {:.3} | {:.3} | {:.2} | {f1} |\n",
+                c.mae, c.mae_zero, c.mae_constant_mean, c.correlation
+            ));
+        }
+        out
     }
 }
 
@@ -242,6 +443,8 @@ pub const VARIANTS: [&str; 4] = [
 #[derive(Clone, Debug, Default)]
 pub struct Evaluation {
     pub rows: Vec<(String, Metrics)>,
+    /// Per variant (the order of `rows`), the expression report.
+    pub reports: Vec<ExpressionReport>,
     pub zero_weights_mae: f64,
     pub clips: usize,
     pub backend: String,
@@ -310,12 +513,16 @@ pub fn evaluate(
             acc[3].add(&tracker.retrack(o, w, h), t);
         }
     }
+    let visible = visible_channels(&face.template);
+    let (metrics, reports): (Vec<Metrics>, Vec<ExpressionReport>) =
+        acc.iter().map(|a| a.finish(&visible)).unzip();
     Ok(Evaluation {
         rows: VARIANTS
             .iter()
-            .zip(&acc)
-            .map(|(name, a)| (name.to_string(), a.finish()))
+            .map(|name| name.to_string())
+            .zip(metrics)
             .collect(),
+        reports,
         zero_weights_mae: zero / zero_n.max(1) as f64,
         clips: clips.len(),
         backend,
@@ -325,17 +532,23 @@ pub fn evaluate(
 impl Evaluation {
     /// A Markdown table.
     pub fn table(&self) -> String {
+        let visible = self
+            .reports
+            .first()
+            .map_or(0, |r| r.channels.iter().filter(|c| c.visible).count());
         let mut out = format!(
-            "{} held-out clips, {} frames, backend {}\n\n| variant | expression MAE | landmark NME | yaw / pitch / roll error (deg) | w jitter | landmark jitter | face found |\n|---|---|---|---|---|---|---|\n",
+            "{} held-out clips, {} frames, backend {}\n\n| variant | expression MAE (all 53) | MAE ({visible} visible) | landmark NME (box) | NME (inter-ocular) | yaw / pitch / roll error (deg) | w jitter | landmark jitter | face found |\n|---|---|---|---|---|---|---|---|---|\n",
             self.clips,
             self.rows.first().map_or(0, |r| r.1.frames),
             self.backend
         );
         for (name, m) in &self.rows {
             out.push_str(&format!(
-                "| {name} | {:.4} | {:.2} % | {:.2} / {:.2} / {:.2} | {:.4} | {:.2} % | {:.0} % |\n",
+                "| {name} | {:.4} | {:.4} | {:.2} % | {:.2} % | {:.2} / {:.2} / {:.2} | {:.4} | {:.2} % | {:.0} % |\n",
                 m.expression_mae,
+                m.expression_mae_visible,
                 100.0 * m.landmark_nme,
+                100.0 * m.landmark_nme_iod,
                 m.pose_error_deg[0],
                 m.pose_error_deg[1],
                 m.pose_error_deg[2],
@@ -344,10 +557,12 @@ impl Evaluation {
                 100.0 * m.detected
             ));
         }
-        out.push_str(&format!(
-            "| w = 0 (reference) | {:.4} | | | | | |\n",
-            self.zero_weights_mae
-        ));
+        if let Some(r) = self.reports.first() {
+            out.push_str(&format!(
+                "| w = 0 (same frames) | {:.4} | {:.4} | | | | | | |\n| w = each channel's mean (same frames) | {:.4} | {:.4} | | | | | | |\n",
+                r.mae_all[1], r.mae_visible[1], r.mae_all[2], r.mae_visible[2]
+            ));
+        }
         out
     }
 }
@@ -420,4 +635,51 @@ pub fn real_crop_agreement(
         tracknet_nme: nme(&out.record)?,
         refined_nme: nme(&refined)?,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frames(rows: &[[f32; 2]]) -> Vec<[f32; NUM_BLENDSHAPES]> {
+        rows.iter()
+            .map(|r| {
+                let mut w = [0.0; NUM_BLENDSHAPES];
+                w[0] = r[0];
+                w[1] = r[1];
+                w
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_expression_report_by_hand() {
+        // Channels 0 and 1 as in training/tests/test_metrics.py; the other 51 all zero.
+        let truth = frames(&[[1.0, 0.0], [0.0, 0.0], [0.0, 0.5], [0.0, 0.0]]);
+        let predicted = frames(&[[0.8, 0.2], [0.0, 0.2], [0.2, 0.3], [0.0, 0.2]]);
+        let mut visible = [false; NUM_BLENDSHAPES];
+        visible[0] = true;
+        let r = expression_report(&predicted, &truth, &visible);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-6;
+        assert!(close(r.channels[0].mae, 0.1) && close(r.channels[1].mae, 0.2));
+        assert!(close(r.channels[0].mae_zero, 0.25) && close(r.channels[1].mae_zero, 0.125));
+        assert!(close(r.channels[0].mae_constant_mean, 0.375));
+        assert!(close(r.mae_visible[0], 0.1) && close(r.mae_visible[1], 0.25));
+        assert!(close(r.mae_all[0], 0.3 / NUM_BLENDSHAPES as f64));
+        // Channel 0: active (> 0.3) in frame 0 on both sides: F1 1. Channel 2: never.
+        assert_eq!(r.channels[0].f1, Some(1.0));
+        assert_eq!(r.channels[2].f1, None);
+        assert!(r.channels[0].correlation > 0.9);
+        assert_eq!(r.channels[2].correlation, 0.0);
+        assert!(r.table().contains("(not visible)"));
+    }
+
+    #[test]
+    fn every_ict_channel_is_visible_once_the_eyes_turn() {
+        let template = face::template::Template::load_default(None).expect("the ICT template");
+        let motion = channel_motion_px(&template);
+        let look = face::names::ict_index("eyeLookOut_L").expect("name");
+        assert!(motion.iter().all(|&px| px >= VISIBLE_MIN_PX), "{motion:?}");
+        assert!(motion[look] > 2.0, "the eyeball turns: {}", motion[look]);
+    }
 }

@@ -9,6 +9,7 @@ compression. The 2D landmarks and the parsing image come from the same render.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +49,70 @@ class Batch:
     people: int
     frames: int
     index: int = -1  # batch index k (people k*P .. k*P + P - 1)
+
+
+# --- mirrored batches ---------------------------------------------------------------------
+
+# The iBUG 68-point scheme's left-right correspondence: landmark k of a face seen in a
+# mirror is landmark MIRROR_68[k] of the face (jaw, brows, nose, eyes, lips).
+MIRROR_68 = (
+    list(range(16, -1, -1))
+    + list(range(26, 16, -1))
+    + [27, 28, 29, 30]
+    + [35, 34, 33, 32, 31]
+    + [45, 44, 43, 42, 47, 46, 39, 38, 37, 36, 41, 40]
+    + [54, 53, 52, 51, 50, 49, 48, 59, 58, 57, 56, 55]
+    + [64, 63, 62, 61, 60, 67, 66, 65]
+)
+# SH coefficients of basis functions odd in x (x, xy, xz; face/src/sh.rs order), per colour.
+SH_ODD_IN_X = (3, 4, 7)
+
+
+def mirror_channels(names: list[str]) -> list[int]:
+    """For each blendshape, the one that does the same on the other side (`_L` <-> `_R`,
+    jawLeft <-> jawRight, mouthLeft <-> mouthRight); itself when symmetric."""
+    idx = {n: i for i, n in enumerate(names)}
+    out = []
+    for n in names:
+        other = n
+        for a, b in (("_L", "_R"), ("_R", "_L"), ("Left", "Right"), ("Right", "Left")):
+            if n.endswith(a):
+                other = n[: -len(a)] + b
+                break
+        out.append(idx.get(other, idx[n]))
+    return out
+
+
+def mirror_batch(batch: Batch, flip: torch.Tensor, channels: list[int]) -> Batch:
+    """The batch with the images where `flip` [P*N] is set seen in a mirror: images and
+    parsing flipped left-right, landmarks mirrored and renumbered (MIRROR_68), w with its
+    left and right channels swapped (`mirror_channels`), yaw and roll negated, translation's
+    x negated, the principal point mirrored, the light's x-odd SH terms negated. It is the
+    truth of the mirrored person (an identity mirrored too), which supervised and
+    self-supervised terms alike may use; the per-person maps and true vertices stay as they
+    were (evaluation reads them from unflipped batches only)."""
+    if not bool(flip.any()):
+        return batch
+    f = flip.view(-1)
+    width = batch.images.shape[-1]
+    images = torch.where(f[:, None, None, None], batch.images.flip(-1), batch.images)
+    parsing = torch.where(f[:, None, None, None], batch.parsing.flip(2), batch.parsing)
+    mirrored = batch.landmarks[:, MIRROR_68].clone()
+    mirrored[..., 0] = width - mirrored[..., 0]
+    landmarks = torch.where(f[:, None, None], mirrored, batch.landmarks)
+    weights = torch.where(f[:, None], batch.weights[:, channels], batch.weights)
+    euler = torch.where(f[:, None], batch.euler * torch.tensor([-1.0, 1.0, -1.0]), batch.euler)
+    translation = torch.where(f[:, None], batch.translation * torch.tensor([-1.0, 1.0, 1.0]), batch.translation)
+    principal = batch.principal.clone()
+    principal[f, 0] = width - principal[f, 0]
+    sign = torch.ones(27)
+    for colour in range(3):
+        sign[[9 * colour + k for k in SH_ODD_IN_X]] = -1.0
+    gamma = torch.where(f[:, None], batch.gamma * sign, batch.gamma)
+    return dataclasses.replace(
+        batch, images=images, parsing=parsing, landmarks=landmarks, weights=weights, euler=euler,
+        translation=translation, principal=principal, gamma=gamma,
+    )
 
 
 class SyntheticData:

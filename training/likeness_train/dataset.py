@@ -41,7 +41,9 @@ from .data import Batch, SyntheticData
 
 LAYOUT_VERSION = 1
 # What synthetic.SyntheticPeople draws; a cache of another version holds other data.
-SYNTHETIC_VERSION = 2
+# Version 3: the eyeballs turn with the eyeLook weights, mouthClose only with jawOpen, the
+# principal point at the image centre.
+SYNTHETIC_VERSION = 3
 UNCOVERED = 255  # parsing label of pixels no triangle covers (an all-zero soft vector)
 FLOAT_KEYS = ("landmarks", "weights", "euler", "translation", "gamma", "focal", "principal", "identity_coeffs")
 

@@ -8,10 +8,14 @@ ModelNet on each person's N frames and compares with the known truth (metrics.py
 - `vertex_error_mm`: equation (2) with the predicted w, dS_0, dS_i vs the true model-space
   face-region vertices (mean offset removed);
 - `landmark_nme`: the predicted 68 landmarks projected with the predicted pose (and the
-  known camera) vs the true 2D landmarks, over the outer inter-ocular distance;
+  known camera) vs the true 2D landmarks, over the outer inter-ocular distance (and
+  `landmark_nme_box`, over sqrt(w h) of the true landmarks' box);
 - `photometric_error`: the rendered prediction vs the input image on the mask M_n;
 - `expression_mae` (and `per_channel_mae` per ICT blendshape name): |w - w_true|; beside it
   `per_channel` (predicted and true mean, correlation per channel) and `pose_mae_deg`;
+  `expressions` (metrics.expression_report): MAE over all 53 and the visible channels beside
+  w = 0 and w = each channel's mean on the same frames, per-channel MAE, correlation and
+  activation F1 (w > 0.3);
 - `personalization_recovery`: the predicted corrected blendshapes (S_i - S_0) + F(A_i dS_i)
   vs the person's true ones, relative to the template's error (1 = template, 0 = exact);
 - `albedo_error`: equation (3) at 512 with the predicted w, dR_0, dR_i and the trained
@@ -61,7 +65,7 @@ def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int
     coverage = torch.from_numpy(model.fixture.parsing_map[0] > 0).float()
     mean_albedo = nets.mean_albedo if nets.mean_albedo is not None else region.mean_albedo_face
     template_deltas = region.blendshapes(None)  # [1, 53, Vf, 3]
-    sums = {name: dict.fromkeys(METRIC_KEYS, 0.0) for name in ("personalized", "template")}
+    sums = {name: dict.fromkeys(METRIC_KEYS + ("landmark_nme_box",), 0.0) for name in ("personalized", "template")}
     w_pred, w_true, euler_pred, euler_true = [], [], [], []
     for k in range(people):
         # One person per batch: person k of the seed whatever `people` is.
@@ -78,6 +82,7 @@ def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int
                 s = sums[name]
                 s["expression_mae"] += float(M.expression_mae(params.w, batch.weights))
                 s["landmark_nme"] += float(M.landmark_nme(p.landmarks, batch.landmarks))
+                s["landmark_nme_box"] += float(M.landmark_nme_box(p.landmarks, batch.landmarks))
                 s["vertex_error_mm"] += float(M.vertex_error_mm(p.shape, batch.vertices))
                 s["photometric_error"] += float(M.photometric_error(images, p.out.image, p.out.mask))
                 deltas = template_deltas if name == "template" else region.blendshapes(corrections.dS)
@@ -93,7 +98,9 @@ def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int
     per_channel = M.per_channel_mae(w_pred_all, w_true_all)
     correlation = M.per_channel_correlation(w_pred_all, w_true_all)
     result = {name: {key: value / people for key, value in s.items()} for name, s in sums.items()}
+    visible = M.visible_channels(model, size)
     return {
+        "expressions": M.expression_report(w_pred_all, w_true_all, visible, model.expression_names),
         "evaluation": {"seed": seed, "people": people, "frames": frames, "image_size": size},
         "metrics": result["personalized"],
         "per_channel_mae": dict(zip(model.expression_names, (float(v) for v in per_channel))),
@@ -146,6 +153,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{key:<{width}}  {results['metrics'][key]:12.4f}  {results['baseline']['metrics'][key]:8.4f}")
     print(f"median per-channel correlation of w: {results['median_channel_correlation']:.3f}; pose error (deg): {results['pose_mae_deg']}")
     print(f"expression_mae of w = 0 everywhere: {results['baseline']['zero_weights_expression_mae']:.4f}")
+    print(f"landmark NME over the landmark box sqrt(w h): {results['metrics']['landmark_nme_box']:.4f} (template {results['baseline']['metrics']['landmark_nme_box']:.4f})")
+    print(M.format_expression_report(results["expressions"]))
     print(f"wrote {args.out} ({results['elapsed_s']} s)")
 
 

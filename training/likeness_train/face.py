@@ -19,6 +19,7 @@ Map layout: UV maps are channels-first torch tensors [B, C, H, W] with row 0 at 
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
+
+from .render import euler_to_matrix
 
 #: Number of expression blendshapes S_i (ICT FaceKit; the paper's template has 56).
 NUM_BLENDSHAPES = 53
@@ -35,6 +38,14 @@ NUM_IDENTITY = 100
 CORRECTION_SIZE = 128
 #: The fixture layout this code understands (app/src/fixture.rs FIXTURE_VERSION).
 FIXTURE_VERSION = 1
+# Gaze: ICT's 53 shapes leave the eyeballs where they are (the eyeLook shapes move the lids
+# by < 1 px at 128 px), so the eyeballs are turned by these angles per unit of the eyeLook
+# weights, the same in Rust (`face::gaze`, which the renderer and the Live Link export use):
+# yaw = (look towards the subject's left) x 30 degrees, pitch = (down - up) x 25 degrees,
+# each eye about its own centre, with the signs of the head's yaw and pitch.
+GAZE_YAW_DEG_PER_UNIT = 30.0
+GAZE_PITCH_DEG_PER_UNIT = 25.0
+EYEBALL_PARTS = ("eyeball_left", "eyeball_right")  # the subject's left (+x), right
 FIXTURE_FILE = "face_fixture.safetensors"
 TEMPLATE_FILE = "ict_face_model.safetensors"
 
@@ -280,6 +291,16 @@ class FaceModel(torch.nn.Module):
         # F: grid [1, 1, V, 2] and weight [V, 1] of every vertex, precomputed once.
         self.register_buffer("sample_grid", uv_grid(f32(fixture.sample_uv[idx]))[None, None])
         self.register_buffer("sample_weight", f32(fixture.sample_weight[idx])[:, None])
+        # Where each eyeball's vertices are in this vertex set (none on the face region).
+        for k, part in enumerate(EYEBALL_PARTS):
+            start, end = template.parts.get(part, (0, 0))
+            self.register_buffer(f"eyeball_{k}", torch.from_numpy(np.nonzero((idx >= start) & (idx < end))[0]))
+        names = {n: i for i, n in enumerate(self.expression_names)}
+        # Per eye (left, right): the weights turning it towards +x, -x, down, up.
+        self._gaze_channels = [
+            [names[f"eyeLook{d}_{side}"] for d in directions]
+            for side, directions in (("L", ("Out", "In", "Down", "Up")), ("R", ("In", "Out", "Down", "Up")))
+        ]
         # R_0 of the face layer, channels-first [3, 512, 512]: the layer corrections apply to.
         self.register_buffer("mean_albedo_face", f32(fixture.mean_albedo[0]).permute(2, 0, 1).contiguous())
 
@@ -394,6 +415,39 @@ class FaceModel(torch.nn.Module):
             uv = combined if uv is None else uv + combined
         if uv is not None:
             out = out + self.sample_uv(uv)
+        return out
+
+    def gaze_angles(self, weights: torch.Tensor) -> torch.Tensor:
+        """(yaw, pitch) radians of each eye for weights [B, 53]: [B, 2 (left, right), 2]
+        (`GAZE_YAW_DEG_PER_UNIT`, `GAZE_PITCH_DEG_PER_UNIT`)."""
+        eyes = []
+        for plus_x, minus_x, down, up in self._gaze_channels:
+            yaw = (weights[:, plus_x] - weights[:, minus_x]) * math.radians(GAZE_YAW_DEG_PER_UNIT)
+            pitch = (weights[:, down] - weights[:, up]) * math.radians(GAZE_PITCH_DEG_PER_UNIT)
+            eyes.append(torch.stack([yaw, pitch], dim=-1))
+        return torch.stack(eyes, dim=1)
+
+    def turn_eyes(self, vertices: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """Vertices [B, V, 3] with each eyeball turned by its gaze (`gaze_angles`) about its
+        centre: R = Ry(yaw) Rx(pitch), as the head's. The centre is the middle of the
+        eyeball's extent across and up, and one radius (half its width) in front of its back:
+        its extent front to back includes the cornea's bulge. A vertex set without eyeballs
+        (the face region) is returned as it is."""
+        angles = self.gaze_angles(weights)
+        out = vertices
+        for k in range(len(EYEBALL_PARTS)):
+            ids = getattr(self, f"eyeball_{k}")
+            if ids.numel() == 0:
+                continue
+            if out is vertices:
+                out = vertices.clone()
+            eye = vertices.index_select(1, ids)  # [B, E, 3]
+            low, high = eye.min(dim=1).values, eye.max(dim=1).values
+            centre = 0.5 * (low + high)
+            centre[:, 2] = low[:, 2] + 0.5 * (high[:, 0] - low[:, 0])
+            rotation = euler_to_matrix(F.pad(angles[:, k], (0, 1)))  # roll 0
+            turned = (eye - centre[:, None]) @ rotation.transpose(1, 2) + centre[:, None]
+            out[:, ids] = turned
         return out
 
     def blendshapes(self, dS: torch.Tensor | None = None) -> torch.Tensor:

@@ -165,6 +165,10 @@ class BasicBlock(nn.Module):
 
 
 TRACK_POOLS = ("avg", "flatten")
+# Where TrackNet's expression weights come from: "shared", the one fully connected layer all
+# outputs share (as first built: the trunk then learnt pose features only, and w came out as
+# each channel's average); "own", a two-layer head of their own on the trunk's features.
+TRACK_W_HEADS = ("shared", "own")
 
 
 class ResNet18Encoder(nn.Module):
@@ -206,6 +210,9 @@ class TrackParams:
     euler: torch.Tensor  # [B, 3] (yaw, pitch, roll) radians
     translation: torch.Tensor  # [B, 3] cm, camera space
     gamma: torch.Tensor  # [B, 27]
+    # The logits z of w = sigmoid(z), for losses that need them (cross-entropy); None where
+    # w does not come from TrackNet.
+    w_logits: torch.Tensor | None = None
 
 
 class TrackNet(nn.Module):
@@ -227,14 +234,28 @@ class TrackNet(nn.Module):
         w_grad_scale: float = 1.0,
         pool: str = "avg",
         input_size: int = 128,
+        w_head: str = "shared",
+        w_hidden: int = 256,
     ):
         super().__init__()
+        if w_head not in TRACK_W_HEADS:
+            raise ValueError(f"w_head must be one of {TRACK_W_HEADS}, got {w_head!r}")
         self.w_grad_scale = w_grad_scale
         self.encoder = ResNet18Encoder(width, pool=pool, input_size=input_size)
         self.fc = nn.Sequential(nn.Linear(self.encoder.out_features, hidden), nn.ReLU(inplace=True))
         self.head = nn.Linear(hidden, NUM_BLENDSHAPES + 3 + 3 + 27)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
+        # The w logits of the "own" head replace the shared head's first 53 outputs.
+        self.w_head = None
+        if w_head == "own":
+            self.w_head = nn.Sequential(
+                nn.Linear(self.encoder.out_features, w_hidden), nn.ReLU(inplace=True), nn.Linear(w_hidden, NUM_BLENDSHAPES)
+            )
+            # Small, not zero: a zero last layer would block w's gradient to the trunk until
+            # it had moved, and the outputs start near the bias anyway.
+            with torch.no_grad():
+                self.w_head[2].weight.mul_(0.1)
         # w = sigmoid(x) starts at 0.5 with zero logits; start near 0 instead (sparse prior).
         # Output scales: euler = rotation_scale * raw (radians), translation = prior +
         # translation_scale * raw (cm), w = sigmoid(w_gain * raw). They set how strongly each
@@ -244,25 +265,34 @@ class TrackNet(nn.Module):
         self.w_gain = w_gain
         with torch.no_grad():
             self.head.bias[:NUM_BLENDSHAPES] = -4.0 / w_gain
+            if self.w_head is not None:
+                self.w_head[2].bias.fill_(-4.0 / w_gain)
         self.register_buffer("translation_prior", torch.tensor(translation_prior, dtype=torch.float32))
         if gamma_prior is None:
             gamma_prior = torch.zeros(27)
         self.register_buffer("gamma_prior", gamma_prior.float().clone())
 
     def forward(self, images: torch.Tensor) -> TrackParams:
-        hidden = self.fc(self.encoder(images))
+        return self.heads(self.encoder(images))
+
+    def heads(self, features: torch.Tensor) -> TrackParams:
+        """The outputs from the trunk's features [B, F] (`encoder(images)`); training measures
+        each output's gradient at the features through this split."""
+        hidden = self.fc(features)
         raw = self.head(hidden)
-        if self.training and self.w_grad_scale != 1.0:
+        if self.w_head is not None:
+            raw = torch.cat([self.w_head(features), raw[:, NUM_BLENDSHAPES:]], dim=1)
+        elif self.training and self.w_grad_scale != 1.0:
             # Same values; the gradient that w sends into the shared trunk is scaled (see
             # train.TrainConfig.track_w_grad_scale). Only training sees it, so exports do not.
             scaled = hidden.detach() + self.w_grad_scale * (hidden - hidden.detach())
             w_raw = nn.functional.linear(scaled, self.head.weight[:NUM_BLENDSHAPES], self.head.bias[:NUM_BLENDSHAPES])
             raw = torch.cat([w_raw, raw[:, NUM_BLENDSHAPES:]], dim=1)
-        w = torch.sigmoid(self.w_gain * raw[:, :NUM_BLENDSHAPES])
+        logits = self.w_gain * raw[:, :NUM_BLENDSHAPES]
         euler = self.rotation_scale * raw[:, NUM_BLENDSHAPES : NUM_BLENDSHAPES + 3]
         translation = self.translation_prior + self.translation_scale * raw[:, NUM_BLENDSHAPES + 3 : NUM_BLENDSHAPES + 6]
         gamma = self.gamma_prior + raw[:, NUM_BLENDSHAPES + 6 :]
-        return TrackParams(w, euler, translation, gamma)
+        return TrackParams(torch.sigmoid(logits), euler, translation, gamma, w_logits=logits)
 
 
 def parameter_count(module: nn.Module) -> int:
@@ -292,6 +322,8 @@ def load_networks(path) -> TrainedNetworks:
         w_gain=cfg.get("track_w_gain", 1.0),
         pool=cfg.get("track_pool", "avg"),
         input_size=cfg["input_size"],
+        w_head=cfg.get("track_w_head", "shared"),
+        w_hidden=cfg.get("track_w_hidden", 256),
     )
     model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
     track.load_state_dict(ckpt["track_net"])

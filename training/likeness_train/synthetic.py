@@ -10,9 +10,11 @@ with a *personal* face model we know exactly, so that every claim can be measure
   template's own motion (how far this person's mouth opens, an asymmetric smile) plus
   smooth Gaussian-bump fields (brow shape, cheek bulges), a few mm, more around the mouth;
 - dynamic albedo dR_i^true: folds and wrinkles that appear with the expression, inside A_i;
-- per frame: sparse weights w in [0, 1] (gaze, blinks, correlated L/R pairs), head pose
-  (yaw +-60, pitch +-30, roll +-20 degrees), SH lighting gamma (ambient + one directional
-  light, nearly monochromatic), camera jitter;
+- per frame: sparse weights w in [0, 1] (gaze, which turns the eyeballs as
+  `face.FaceModel.turn_eyes` says; blinks; correlated L/R pairs; mouthClose only as the
+  corrective of an open jaw), head pose (yaw +-60, pitch +-30, roll +-20 degrees), SH
+  lighting gamma (ambient + one directional light, nearly monochromatic), the camera's
+  field of view and distance (the principal point at the centre, as inference assumes);
 - `compose_image`: what happens after rendering (background, blur, sensor noise, JPEG).
 
 Everything is deterministic in a seed: `SyntheticPeople(model, seed).person(k)` and
@@ -77,7 +79,15 @@ class SyntheticConfig:
     min_expression_groups: int = 1
     max_expression_groups: int = 7
     talking_probability: float = 0.4
+    # mouthClose is a corrective (ICT and ARKit): it closes the lips of an open jaw, so it is
+    # drawn only with jawOpen and at most jawOpen; alone it pushes the lower lip through the
+    # upper one. Version 2 drew it as any other shape.
+    mouth_close_probability: float = 0.25  # of the frames with the jaw open
     fov_deg_range: tuple[float, float] = (25.0, 40.0)
+    # Principal point jitter (standard deviation, a fraction of the image size). 0: at the
+    # centre, which is what the inference crop assumes (tracking/src/params.rs); the image
+    # cannot show it, so version 2's 0.01 was a landmark-loss floor of ~3.3 px^2 per image.
+    principal_jitter: float = 0.0
     image_size: int = 128
     face_fill: float = 0.85  # face height / image height at nominal distance
 
@@ -452,7 +462,7 @@ class SyntheticPeople:
             w[idx["eyeBlink_L" if rng.random() < 0.5 else "eyeBlink_R"]] = rng.uniform(0.6, 1.0)
         if rng.random() < self.config.talking_probability:
             w[idx["jawOpen"]] = rng.beta(1.5, 2.0)
-        candidates = [i for i, n in enumerate(self.names) if not n.startswith(("eyeLook", "eyeBlink"))]
+        candidates = [i for i, n in enumerate(self.names) if not n.startswith(("eyeLook", "eyeBlink")) and n != "mouthClose"]
         groups = int(rng.integers(self.config.min_expression_groups, self.config.max_expression_groups + 1))
         exclusive = [("jawLeft", "jawRight"), ("mouthLeft", "mouthRight"), ("eyeBlink_L", "eyeWide_L"), ("eyeBlink_R", "eyeWide_R")]
         for i in rng.choice(candidates, size=groups, replace=False):
@@ -464,6 +474,9 @@ class SyntheticPeople:
         for a, b in exclusive:
             if w[idx[a]] > 0 and w[idx[b]] > 0:
                 w[idx[b] if rng.random() < 0.5 else idx[a]] = 0.0
+        jaw = w[idx["jawOpen"]]
+        if jaw > 0 and rng.random() < self.config.mouth_close_probability:
+            w[idx["mouthClose"]] = jaw * rng.uniform(0.3, 1.0)
         return np.clip(w, 0.0, 1.0).astype(np.float32)
 
     def pose(self, rng) -> np.ndarray:
@@ -488,14 +501,16 @@ class SyntheticPeople:
         return (constant_light(ambient) + directional_light(d, key)).astype(np.float32)
 
     def camera(self, rng, euler: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        """Focal length (field of view 25-40 degrees), principal point jitter and a
+        """Focal length (field of view 25-40 degrees), the principal point and a
         translation that puts the face centre near the image centre at a distance where
         the face fills ~70-100% of the image height."""
         c = self.config
         size = c.image_size
         fov = math.radians(rng.uniform(*c.fov_deg_range))
         focal = 0.5 * size / math.tan(0.5 * fov)
-        principal = np.array([0.5 * size, 0.5 * size]) + rng.normal(0.0, 0.01 * size, 2)
+        principal = np.array([0.5 * size, 0.5 * size])
+        if c.principal_jitter > 0:
+            principal = principal + rng.normal(0.0, c.principal_jitter * size, 2)
         depth = focal * self.face_height / (c.face_fill * size) * rng.uniform(0.9, 1.25)
         offset = rng.uniform(-0.06, 0.06, 2) * size * depth / focal
         target = np.array([offset[0], offset[1], -depth])
@@ -532,7 +547,7 @@ class SyntheticPeople:
         out = stack_frames(frames)
         out["rotation"] = torch.as_tensor(np.stack([euler_to_matrix(f.euler) for f in frames]), dtype=torch.float32)
         with torch.no_grad():
-            vertices = person.shape(model, out["weights"])
+            vertices = model.turn_eyes(person.shape(model, out["weights"]), out["weights"])
             out["vertices"] = vertices
             out["landmarks_3d"] = model.landmarks(vertices)
             out["albedo"] = person.albedo(model, out["weights"])

@@ -32,16 +32,18 @@ from torch import nn
 
 from . import losses as L
 from . import render as R
-from .data import Batch, SyntheticData
+from .data import Batch, SyntheticData, mirror_batch, mirror_channels
 from .dataset import CachedData
 from .export import IMAGE_MEAN, IMAGE_STD, git_commit
 from .face import FaceModel
-from .networks import TRACK_POOLS, Corrections, ModelNet, TrackNet, TrackParams
+from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, ModelNet, TrackNet, TrackParams
 
 
 WARMUP_CHECKPOINT = "warmup.pt"  # the checkpoint at the end of stage 0, beside checkpoint.pt
 # Configuration a resumed run must share with its checkpoint (Trainer.resume).
-RESUME_KEYS = ("input_size", "track_width", "model_width", "track_pool", "people_per_batch", "frames", "landmark_warmup_steps", "seed")
+RESUME_KEYS = ("input_size", "track_width", "model_width", "track_pool", "track_w_head", "track_w_hidden", "people_per_batch", "frames", "landmark_warmup_steps", "seed")
+# How the supervised w term compares w with the truth (TrainConfig.w_loss says why).
+W_LOSSES = ("sq", "l1", "bce_l1")
 
 
 @dataclass
@@ -61,6 +63,26 @@ class TrainConfig:
     # "flatten" keeps where things are; at equal warm-up steps it lowered the landmark loss
     # (9.9 against 10.5 px^2 over steps 2,600-3,000) and the NME (9.8 against 10.0 %).
     track_pool: str = "flatten"
+    # Where w comes from (networks.TRACK_W_HEADS): "own", a head of its own on the trunk's
+    # features. The shared head gave w a linear map of pose features: TrackNet output each
+    # channel's average (issue 31).
+    track_w_head: str = "own"
+    track_w_hidden: int = 256
+    # The supervised w term per image (weight `warmup_supervision`): "sq" = sum_i (w_i -
+    # w_i^true)^2 as before: through the sigmoid at w ~ 0.08 its gradient is ~0.07 of the
+    # error and it sat at the constant-mean floor; "l1" = sum_i |w_i - w_i^true|, the metric;
+    # "bce_l1" = the cross-entropy of the logits against w^true (its gradient at the logits is
+    # w - w^true, never saturating) plus the L1 term, which keeps the zeros of the
+    # zero-inflated truth at zero (the median, where the cross-entropy alone aims at the mean).
+    w_loss: str = "bce_l1"
+    # Not in the paper: the warm-up also supervises the head pose where the data knows it,
+    # lambda * (|euler - euler^true|^2 in radians + |t - t^true|^2 / 100 in cm, for the
+    # reference camera) per image.
+    warmup_pose_supervision: float = 10.0
+    # Each person's frames are seen in a mirror with this probability (data.mirror_batch:
+    # left and right channels swapped), in every stage: twice the distinct faces, and no
+    # left-right bias for w to learn.
+    flip_probability: float = 0.5
     people_per_batch: int = 4
     frames: int = 4  # N, as the paper
     # Stage 0 (not in the paper, 0 = off): TrackNet alone on L_lm + L_reg with the template
@@ -145,7 +167,12 @@ class Trainer:
             width=config.track_width, gamma_prior=gamma_prior, rotation_scale=config.track_rotation_scale,
             translation_scale=config.track_translation_scale, w_gain=config.track_w_gain,
             w_grad_scale=config.track_w_grad_scale, pool=config.track_pool, input_size=config.input_size,
+            w_head=config.track_w_head, w_hidden=config.track_w_hidden,
         )
+        self.mirror = mirror_channels(self.model.expression_names)
+        # Set by `run` on the steps it logs: the step then measures each term's gradient at
+        # TrackNet's trunk (`trunk_gradients`).
+        self.measure_trunk = False
         self.modelnet = ModelNet(input_size=config.input_size, width=config.model_width)
         # R_0^t: the trainable mean albedo, initialised with R_0 (paper, eq. (3)).
         self.mean_albedo = nn.Parameter(self.region.mean_albedo_face.clone())
@@ -284,9 +311,11 @@ class Trainer:
 
     def warmup_step(self, batch: Batch) -> dict[str, float]:
         """Stage 0: L_lm + L_reg of TrackNet's w and pose on the template shape
-        S_0 + sum_i w_i (S_i - S_0) at the 68 landmark vertices only."""
+        S_0 + sum_i w_i (S_i - S_0) at the 68 landmark vertices only, plus the supervised
+        terms."""
         self.track.train()
-        params = self.track(self.normalise(batch.images))
+        features = self.track.encoder(self.normalise(batch.images))
+        params = self.track.heads(features)
         idx = self.region.landmarks_68
         neutral = self.region.neutral[idx]
         deltas = self.region.expression_deltas[:, idx]
@@ -296,17 +325,24 @@ class Trainer:
         landmarks, _ = R.project(points, R.euler_to_matrix(params.euler), translation, batch.focal, cx, cy)
         frames = batch.people * batch.frames
         terms = {"lm": L.landmark_loss(batch.landmarks, landmarks) / frames, "reg": L.regularization_loss(params.w, params.gamma) / frames}
-        sup_terms, sup_weights = self.supervision(params, batch)
-        return self._optimise({**terms, **sup_terms}, {**self.cfg.weights, **sup_weights})
+        sup_terms, sup_weights = self.supervision(params, batch, pose=True)
+        terms, weights = {**terms, **sup_terms}, {**self.cfg.weights, **sup_weights}
+        norms = trunk_gradients(features, terms, weights) if self.measure_trunk else {}
+        return {**self._optimise(terms, weights), **norms}
 
-    def supervision(self, params: TrackParams, batch: Batch) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
-        """The warm-up's supervised terms (TrainConfig says why): squared errors of w and
-        gamma against the synthetic truth per image, with their weights; empty when off."""
+    def supervision(self, params: TrackParams, batch: Batch, pose: bool = False) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
+        """The warm-up's supervised terms (TrainConfig says why): w (`w_loss`), gamma and,
+        with `pose`, the head pose against the synthetic truth per image, with their
+        weights; empty when off."""
         frames = batch.people * batch.frames
         terms, weights = {}, {}
         if self.cfg.warmup_supervision > 0:
-            terms["sup"] = (params.w - batch.weights).pow(2).sum() / frames
+            terms["sup"] = w_loss(params, batch.weights, self.cfg.w_loss) / frames
             weights["sup"] = self.cfg.warmup_supervision
+        if pose and self.cfg.warmup_pose_supervision > 0:
+            target = reference_translation(batch.translation, batch.focal, self.cfg.input_size)
+            terms["sup_pose"] = ((params.euler - batch.euler).pow(2).sum() + (params.translation - target).pow(2).sum() / 100.0) / frames
+            weights["sup_pose"] = self.cfg.warmup_pose_supervision
         if self.cfg.warmup_light_supervision > 0:
             terms["sup_light"] = (params.gamma - batch.gamma).pow(2).sum() / frames
             weights["sup_light"] = self.cfg.warmup_light_supervision
@@ -320,6 +356,7 @@ class Trainer:
 
     def train_step(self) -> dict[str, float]:
         batch = self.data.batch(self.data_index(), self.cfg.people_per_batch)
+        batch = mirror_batch(batch, self.flips(batch), self.mirror)
         if self.stage == 0:
             return self.warmup_step(batch)
         frozen_tracking = self.tracking_frozen()
@@ -341,6 +378,15 @@ class Trainer:
             sup_terms, sup_weights = self.supervision(params, batch)
             return self._optimise({**terms, **sup_terms}, {**self.cfg.weights, **sup_weights})
         return self._optimise(terms)
+
+    def flips(self, batch: Batch) -> torch.Tensor:
+        """Which images of the step's batch are mirrored: whole people (ModelNet sees one
+        person in all N frames), drawn from (seed, step) so a resumed run draws the same."""
+        if self.cfg.flip_probability <= 0:
+            return torch.zeros(batch.people * batch.frames, dtype=torch.bool)
+        generator = torch.Generator().manual_seed(self.cfg.seed * 1_000_003 + self.step)
+        people = torch.rand(batch.people, generator=generator) < self.cfg.flip_probability
+        return people.repeat_interleave(batch.frames)
 
     def predict_model_only(self, batch: Batch) -> tuple[None, Corrections]:
         size = self.cfg.input_size
@@ -371,6 +417,7 @@ class Trainer:
             lr = self.learning_rate()
             for group in self.optimizer.param_groups:
                 group["lr"] = lr * group.get("lr_scale", 1.0)
+            self.measure_trunk = (self.step + 1) % log_every == 0
             values = self.train_step()
             values.update(lr=lr, step=self.step, stage=self.stage, step_s=round(time.time() - t0, 3), elapsed_s=round(self.elapsed(), 1))
             if self.step % log_every == 0 or self.step == total_steps:
@@ -390,6 +437,31 @@ class Trainer:
         flags, so the ablation rows start from it (`ablation --warmup-from`)."""
         self.save()
         shutil.copyfile(self.checkpoint_path, self.out / WARMUP_CHECKPOINT)
+
+
+def w_loss(params: TrackParams, truth: torch.Tensor, kind: str) -> torch.Tensor:
+    """The supervised w term summed over the batch (TrainConfig.w_loss)."""
+    if kind == "sq":
+        return (params.w - truth).pow(2).sum()
+    l1 = (params.w - truth).abs().sum()
+    if kind == "l1":
+        return l1
+    if params.w_logits is None:
+        raise ValueError("the cross-entropy w loss needs TrackNet's logits")
+    return nn.functional.binary_cross_entropy_with_logits(params.w_logits, truth, reduction="sum") + l1
+
+
+def trunk_gradients(features: torch.Tensor, terms: dict[str, torch.Tensor], weights: dict[str, float]) -> dict[str, float]:
+    """The norm of each weighted term's gradient at TrackNet's trunk output (the features
+    all heads read), as `grad_<term>`: whether w's term trains the trunk or pose's drowns it
+    (issue 31). Costs one backward pass through the heads per term."""
+    out = {}
+    for name, value in terms.items():
+        if not value.requires_grad:
+            continue
+        (grad,) = torch.autograd.grad(weights[name] * value, features, retain_graph=True, allow_unused=True)
+        out[f"grad_{name}"] = 0.0 if grad is None else float(grad.norm())
+    return out
 
 
 def decayed_learning_rate(step: int, steps: int, cfg: TrainConfig) -> float:
@@ -496,9 +568,9 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True)
     defaults = TrainConfig()
-    for name in ("input_size", "people_per_batch", "frames", "landmark_warmup_steps", "stage1_track_frozen_steps", "stage1_steps", "stage2_steps", "seed", "threads"):
+    for name in ("input_size", "people_per_batch", "frames", "landmark_warmup_steps", "stage1_track_frozen_steps", "stage1_steps", "stage2_steps", "seed", "threads", "track_w_hidden"):
         parser.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(defaults, name))
-    for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "lr_decay_from", "lr_final_ratio", "checkpoint_every_s", "warmup_supervision", "warmup_light_supervision", "stage1_track_lr_ratio", "track_rotation_scale", "track_translation_scale", "track_w_gain", "track_w_grad_scale"):
+    for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "lr_decay_from", "lr_final_ratio", "checkpoint_every_s", "warmup_supervision", "warmup_light_supervision", "stage1_track_lr_ratio", "track_rotation_scale", "track_translation_scale", "track_w_gain", "track_w_grad_scale", "warmup_pose_supervision", "flip_probability"):
         parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(defaults, name))
     for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
         parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")
@@ -513,6 +585,8 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
         help="keep the warm-up's supervised terms for TrackNet in stage 1",
     )
     parser.add_argument("--track-pool", choices=TRACK_POOLS, default=defaults.track_pool)
+    parser.add_argument("--track-w-head", choices=TRACK_W_HEADS, default=defaults.track_w_head)
+    parser.add_argument("--w-loss", choices=W_LOSSES, default=defaults.w_loss)
     parser.add_argument("--sd-reduction", choices=("sum", "mean"), default=defaults.sd_reduction)
     parser.add_argument("--bg-reduction", choices=("sum", "shape_mean", "mean"), default=defaults.bg_reduction)
     parser.add_argument(
@@ -526,6 +600,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
         "landmark_warmup_steps": (0, float("inf")), "stage1_steps": (0, float("inf")), "stage2_steps": (0, float("inf")),
         "lr_decay_from": (0.0, 1.0), "lr_final_ratio": (0.0, 1.0), "track_w_grad_scale": (1e-6, 1e6), "warmup_supervision": (0.0, 1e6),
         "warmup_light_supervision": (0.0, 1e6), "stage1_track_frozen_steps": (0, float("inf")), "stage1_track_lr_ratio": (0.0, 1e3),
+        "warmup_pose_supervision": (0.0, 1e6), "flip_probability": (0.0, 1.0), "track_w_hidden": (1, 8192),
     }
     for name, (low, high) in checks.items():
         if not (low <= args[name] <= high):

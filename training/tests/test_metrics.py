@@ -1,5 +1,6 @@
 """Metrics against hand-computed values."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -55,3 +56,49 @@ def test_per_channel_correlation_and_pose_error():
     assert c[0].item() == pytest.approx(1.0) and c[1].item() == pytest.approx(-1.0) and c[2].item() == 0.0
     e = pose_mae_deg(torch.tensor([[math.radians(10), 0.0, -math.radians(4)]]), torch.zeros(1, 3))
     assert e["yaw"] == pytest.approx(10.0) and e["pitch"] == 0.0 and e["roll"] == pytest.approx(4.0)
+
+
+def test_activation_f1_by_hand():
+    truth = torch.tensor([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.9, 0.4, 0.0], [0.1, 0.0, 0.0]])
+    predicted = torch.tensor([[0.6, 0.0, 0.0], [0.4, 0.0, 0.0], [0.2, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    f1 = M.activation_f1(predicted, truth)
+    # Channel 0: predicted active in frames 0, 1; truly in 0, 2: tp 1, F1 = 2 / (2 + 2).
+    assert f1[0].item() == pytest.approx(0.5)
+    assert f1[1].item() == pytest.approx(0.0)  # truly active once, never found
+    assert torch.isnan(f1[2])  # never active on either side
+
+
+def test_landmark_nme_over_the_box():
+    truth = torch.zeros(1, 68, 2)
+    truth[0, :, 0] = torch.linspace(0, 40, 68)  # a 40 x 10 box: sqrt(w h) = 20
+    truth[0, :, 1] = torch.linspace(0, 10, 68)
+    predicted = truth + torch.tensor([3.0, 4.0])  # every point 5 px off
+    assert M.landmark_nme_box(predicted, truth).item() == pytest.approx(0.25)
+
+
+def test_expression_report_puts_the_prediction_beside_the_trivial_predictors():
+    truth = torch.tensor([[1.0, 0.0], [0.0, 0.0], [0.0, 0.5], [0.0, 0.0]])
+    predicted = torch.tensor([[0.8, 0.2], [0.0, 0.2], [0.2, 0.3], [0.0, 0.2]])
+    report = M.expression_report(predicted, truth, torch.tensor([True, False]), ["a", "b"])
+    # Per channel: prediction a 0.1, b 0.2; zero 0.25, 0.125; mean (0.25, 0.125): 0.375, 0.1875.
+    assert report["per_channel"]["a"]["mae"] == pytest.approx(0.1)
+    assert report["per_channel"]["b"]["mae_zero"] == pytest.approx(0.125)
+    assert report["per_channel"]["a"]["mae_constant_mean"] == pytest.approx(0.375)
+    assert report["mae_all"]["predicted"] == pytest.approx(0.15)
+    assert report["mae_visible"]["predicted"] == pytest.approx(0.1)  # channel a only
+    assert report["mae_visible"]["zero"] == pytest.approx(0.25)
+    assert report["channels_beating_zero"] == 1 and report["visible_channels_beating_zero"] == 1
+    assert "b" in M.format_expression_report(report)
+
+
+def test_every_channel_is_visible_once_the_eyes_turn(face_model):
+    """At 128 px each ICT shape moves some face or eyeball vertex by >= 1 px at w = 1; the
+    gaze shapes only because the eyeballs turn (their lids move < 1 px)."""
+    motion = M.channel_motion_px(face_model)
+    assert (motion >= M.VISIBLE_MIN_PX).all(), motion.min()
+    t = face_model.template
+    face_end = t.parts["face"][1]
+    pixels_per_cm = 0.85 * 128 / float(np.ptp(t.neutral[:face_end, 1]))
+    look = face_model.expression_names.index("eyeLookOut_L")
+    lids = float(torch.from_numpy(t.expression_deltas[look, :face_end]).norm(dim=-1).max()) * pixels_per_cm
+    assert lids < 1.0 < 2.0 < float(motion[look])

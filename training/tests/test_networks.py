@@ -130,3 +130,23 @@ def test_track_net_w_grad_scale_scales_only_the_trunk_gradient_of_w():
     scaled.eval()
     base.eval()
     assert torch.allclose(base(x).w, scaled(x).w, atol=1e-6)
+
+
+def test_track_net_with_its_own_w_head_takes_w_from_it_and_nothing_else():
+    """--track-w-head own: w = sigmoid(w_head(features)); the shared layers get no gradient
+    from w, the trunk does; pose, translation and light are the shared head's as before."""
+    torch.manual_seed(0)
+    x = torch.randn(3, 3, 64, 64)
+    net = TrackNet(width=0.25, w_head="own").train()
+    features = net.encoder(x)
+    p = net.heads(features)
+    assert torch.allclose(p.w, torch.sigmoid(net.w_head(features)), atol=1e-6)
+    assert torch.allclose(p.w_logits, net.w_head(features), atol=1e-6)
+    assert p.w.max() < 0.05, "untrained w starts near 0"
+    assert float(p.w.std()) > 0, "and varies with the image: the trunk gets w's gradient from the first step"
+    net.zero_grad()
+    net(x).w.sum().backward()
+    assert net.fc[0].weight.grad is None or float(net.fc[0].weight.grad.abs().max()) == 0.0
+    assert float(net.encoder.stem[0].weight.grad.abs().max()) > 0
+    with pytest.raises(ValueError, match="w_head"):
+        TrackNet(width=0.25, w_head="separate")

@@ -125,6 +125,61 @@ def test_expressions_are_dense_enough_to_learn(people):
     assert (w[:, expression] > 0.05).mean() > 0.08
 
 
+def test_mouth_close_is_a_corrective_of_an_open_jaw(people):
+    """Version 3: mouthClose only with jawOpen and at most jawOpen (in ICT and ARKit it
+    closes the lips of an open jaw; alone it pushes the lower lip through the upper)."""
+    w = np.stack([f.weights for k in range(150) for f in people.group(k, 0, 4)])
+    close, jaw = w[:, people.names.index("mouthClose")], w[:, people.names.index("jawOpen")]
+    assert (close <= jaw + 1e-7).all()
+    assert (close[jaw == 0] == 0).all()
+    assert 0.05 < (close > 0).mean() < 0.2  # 0.25 of the ~40 % of frames with the jaw open
+
+
+def test_the_principal_point_is_the_image_centre(frames):
+    """What the inference crop assumes (tracking/src/params.rs): the image cannot show it."""
+    for f in frames:
+        assert np.array_equal(f.principal, [0.5 * f.image_size, 0.5 * f.image_size])
+
+
+def test_the_eyeballs_turn_by_the_documented_angles_and_nothing_else_moves(face_model):
+    from likeness_train.face import EYEBALL_PARTS, GAZE_PITCH_DEG_PER_UNIT, GAZE_YAW_DEG_PER_UNIT
+
+    names = face_model.expression_names
+    w = torch.zeros(3, 53)
+    w[1, names.index("eyeLookOut_L")] = 0.5  # left eye 15 degrees towards +x
+    w[1, names.index("eyeLookIn_R")] = 0.5  # right eye 15 degrees towards +x
+    w[2, names.index("eyeLookDown_L")] = 1.0  # left eye 25 degrees down
+    w[2, names.index("eyeLookDown_R")] = 0.4  # right eye 10 degrees down
+    shaped = face_model.shape(w)
+    turned = face_model.turn_eyes(shaped, w)
+    t = face_model.template
+    eyes = np.zeros(t.vertex_count, dtype=bool)
+    for part in EYEBALL_PARTS:
+        eyes[slice(*t.parts[part])] = True
+    assert torch.equal(turned[:, ~eyes], shaped[:, ~eyes])
+    assert torch.equal(turned[0], shaped[0])
+    for k, part in enumerate(EYEBALL_PARTS):
+        ids = slice(*t.parts[part])
+        before = shaped[:, ids].double()
+        front = int(before[0, :, 2].argmax())
+        # Rigid: distances between vertices are kept.
+        for frame in (1, 2):
+            after = turned[frame, ids].double()
+            assert torch.allclose(torch.cdist(after[:200], after[:200]), torch.cdist(before[frame, :200], before[frame, :200]), atol=1e-4)
+        # The front pole's direction from the eye's centre turns by the gaze's angles.
+        centre = before[0].mean(0)
+        d0 = before[0, front] - centre
+        for frame, (yaw_deg, pitch_deg) in ((1, (0.5 * GAZE_YAW_DEG_PER_UNIT, 0.0)), (2, (0.0, (1.0 if k == 0 else 0.4) * GAZE_PITCH_DEG_PER_UNIT))):
+            d1 = turned[frame, ids][front].double() - turned[frame, ids].double().mean(0)
+            yaw = math.degrees(math.atan2(d1[0], d1[2]) - math.atan2(d0[0], d0[2]))
+            pitch = math.degrees(math.atan2(-d1[1], math.hypot(d1[0], d1[2])) - math.atan2(-d0[1], math.hypot(d0[0], d0[2])))
+            assert yaw == pytest.approx(yaw_deg, abs=0.5), (part, frame)
+            assert pitch == pytest.approx(pitch_deg, abs=0.5), (part, frame)
+    # The face region has no eyeballs: nothing to turn.
+    region = face_model.restricted()
+    assert torch.equal(region.turn_eyes(region.shape(w), w), region.shape(w))
+
+
 def test_poses_and_cameras_are_within_range(people, frames):
     c = people.config
     deg = np.stack([f.euler_degrees for f in frames])

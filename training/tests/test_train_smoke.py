@@ -13,7 +13,12 @@ from likeness_train.train import TrainConfig, Trainer
 
 
 def _config(**overrides):
-    base = dict(people_per_batch=1, frames=2, landmark_warmup_steps=0, stage1_track_frozen_steps=0, stage1_supervision=False, stage1_steps=2, stage2_steps=1, track_width=0.25, model_width=0.25, checkpoint_every_s=1e9)
+    # No mirroring and no pose term unless a test asks: the tests recompute terms from the
+    # unmirrored batch.
+    base = dict(
+        people_per_batch=1, frames=2, landmark_warmup_steps=0, stage1_track_frozen_steps=0, stage1_supervision=False, stage1_steps=2, stage2_steps=1,
+        track_width=0.25, model_width=0.25, checkpoint_every_s=1e9, flip_probability=0.0, warmup_pose_supervision=0.0,
+    )
     base.update(overrides)
     return TrainConfig(**base)
 
@@ -120,14 +125,29 @@ def test_landmark_warmup_trains_tracknet_alone_then_runs_the_two_stages(tmp_path
     assert any(not torch.equal(v, model_before[k]) for k, v in trainer.modelnet.state_dict().items())
 
 
-@pytest.mark.parametrize("term, output, truth, flags", [
-    ("sup", "w", "weights", dict(warmup_supervision=7.0, warmup_light_supervision=0.0)),
-    ("sup_light", "gamma", "gamma", dict(warmup_supervision=0.0, warmup_light_supervision=7.0)),
+def _squared(p, t):
+    return (p - t).pow(2).sum()
+
+
+def _l1(p, t):
+    return (p - t).abs().sum()
+
+
+def _cross_entropy_l1(p, t):
+    # From the probabilities, not the logits the training uses.
+    return -(t * p.log() + (1 - t) * (1 - p).log()).sum() + _l1(p, t)
+
+
+@pytest.mark.parametrize("term, output, truth, flags, loss", [
+    ("sup", "w", "weights", dict(warmup_supervision=7.0, warmup_light_supervision=0.0, w_loss="sq"), _squared),
+    ("sup", "w", "weights", dict(warmup_supervision=7.0, warmup_light_supervision=0.0, w_loss="l1"), _l1),
+    ("sup", "w", "weights", dict(warmup_supervision=7.0, warmup_light_supervision=0.0, w_loss="bce_l1"), _cross_entropy_l1),
+    ("sup_light", "gamma", "gamma", dict(warmup_supervision=0.0, warmup_light_supervision=7.0), _squared),
 ])
-def test_warmup_supervision_adds_the_squared_error_against_the_truth(tmp_path, term, output, truth, flags):
-    """--warmup-supervision / --warmup-light-supervision lambda add sum (x - x^true)^2 per
-    image (x = w or gamma) with weight lambda to the warm-up only; stage 1 never sees them
-    unless --stage1-supervision."""
+def test_warmup_supervision_adds_its_error_against_the_truth(tmp_path, term, output, truth, flags, loss):
+    """--warmup-supervision lambda adds the --w-loss of w, --warmup-light-supervision lambda
+    sum (gamma - gamma^true)^2, per image, with weight lambda to the warm-up only; stage 1
+    never sees them unless --stage1-supervision."""
     from likeness_train.train import normalise
 
     trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, **flags), tmp_path / term)
@@ -135,16 +155,59 @@ def test_warmup_supervision_adds_the_squared_error_against_the_truth(tmp_path, t
     state = {k: v.clone() for k, v in trainer.track.state_dict().items()}
     trainer.track.train()
     with torch.no_grad():
-        predicted = getattr(trainer.track(normalise(batch.images)), output)
+        predicted = getattr(trainer.track(normalise(batch.images)), output).double()
     trainer.track.load_state_dict(state)  # undo the batch-norm statistics update
     values = trainer.train_step()
-    expected = float((predicted - getattr(batch, truth)).pow(2).sum()) / 2
+    expected = float(loss(predicted, getattr(batch, truth).double())) / 2
     assert expected > 0
     assert values[term] == pytest.approx(expected, rel=1e-4)
     assert values["total"] == pytest.approx(values["lm"] * trainer.cfg.weights["lm"] + values["reg"] * trainer.cfg.weights["reg"] + 7.0 * expected, rel=1e-4)
     trainer.run(log_every=1)
     assert trainer.stage == 1
     assert term not in trainer.train_step(), "stage 1 is self-supervised unless --stage1-supervision"
+
+
+def test_warmup_pose_supervision_compares_with_the_reference_cameras_pose(tmp_path):
+    """--warmup-pose-supervision lambda adds (|euler - euler^true|^2 + |t - t_ref^true|^2 /
+    100) per image, t_ref^true the true translation for the reference camera."""
+    from likeness_train.train import normalise, reference_focal
+
+    trainer = Trainer(_config(landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0, warmup_supervision=0.0, warmup_light_supervision=0.0, warmup_pose_supervision=3.0), tmp_path / "pose")
+    batch = trainer.data.batch(0, 1)
+    state = {k: v.clone() for k, v in trainer.track.state_dict().items()}
+    trainer.track.train()
+    with torch.no_grad():
+        p = trainer.track(normalise(batch.images))
+    trainer.track.load_state_dict(state)
+    values = trainer.train_step()
+    # For the reference camera the face is as large in the image: distance x f_ref / f.
+    target = batch.translation.clone()
+    target[:, 2] *= reference_focal(trainer.cfg.input_size) / batch.focal
+    expected = float(((p.euler - batch.euler) ** 2).sum() + ((p.translation - target) ** 2).sum() / 100) / 2
+    assert values["sup_pose"] == pytest.approx(expected, rel=1e-4)
+    assert values["total"] == pytest.approx(values["lm"] * trainer.cfg.weights["lm"] + values["reg"] * trainer.cfg.weights["reg"] + 3.0 * expected, rel=1e-4)
+
+
+def test_logged_steps_measure_each_terms_gradient_at_the_trunk(tmp_path):
+    trainer = Trainer(_config(landmark_warmup_steps=2, stage1_steps=0, stage2_steps=0, warmup_supervision=1.0), tmp_path / "g")
+    trainer.measure_trunk = True
+    values = trainer.train_step()
+    assert {"grad_lm", "grad_sup", "grad_sup_light", "grad_reg"} <= set(values)
+    assert all(values[k] > 0 and math.isfinite(values[k]) for k in ("grad_lm", "grad_sup"))
+    trainer.measure_trunk = False
+    assert not any(k.startswith("grad_") for k in trainer.train_step())
+
+
+def test_trunk_gradients_are_the_weighted_terms_gradient_norms():
+    from likeness_train.train import trunk_gradients
+
+    features = torch.randn(3, 5, requires_grad=True)
+    a = torch.randn(3, 5)
+    terms = {"linear": (features * a).sum(), "square": features.pow(2).sum(), "constant": torch.tensor(2.0)}
+    norms = trunk_gradients(features, terms, {"linear": 2.0, "square": 0.5, "constant": 1.0})
+    assert norms["grad_linear"] == pytest.approx(float(2.0 * a.norm()), rel=1e-6)
+    assert norms["grad_square"] == pytest.approx(float(features.detach().norm()), rel=1e-6)  # 0.5 * 2 f
+    assert "grad_constant" not in norms
 
 
 def test_a_warmup_only_run_keeps_its_warmup_checkpoint(tmp_path):
