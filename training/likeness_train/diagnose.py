@@ -50,7 +50,8 @@ def weight_costs(shapes=SHAPES, batches=(3, 11, 29), values=(0.0, 0.5, 1.0)) -> 
 
 def fit_weights_at_truth(batches=(3, 11), people: int = 2, iterations: int = 150) -> dict[str, float]:
     """Fits w alone (everything else true) on the training losses; returns the pooled
-    correlation and MAE of the fitted w against the truth, and the MAE of predicting 0."""
+    correlation and MAE of the fitted w against the truth, the MAE of predicting 0 and that
+    of the start (w = 0.05)."""
     with tempfile.TemporaryDirectory() as tmp:
         t = Trainer(TrainConfig(people_per_batch=people, frames=4), Path(tmp))
     truths, fitted = [], []
@@ -72,7 +73,12 @@ def fit_weights_at_truth(batches=(3, 11), people: int = 2, iterations: int = 150
         fitted.append(torch.sigmoid(logits).detach())
     true_w, fitted_w = torch.cat(truths), torch.cat(fitted)
     correlation = torch.corrcoef(torch.stack([true_w.flatten(), fitted_w.flatten()]))[0, 1]
-    return {"pooled_correlation": float(correlation), "mae": float((true_w - fitted_w).abs().mean()), "zero_mae": float(true_w.abs().mean())}
+    return {
+        "pooled_correlation": float(correlation),
+        "mae": float((true_w - fitted_w).abs().mean()),
+        "zero_mae": float(true_w.abs().mean()),
+        "start_mae": float((true_w - 0.05).abs().mean()),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
