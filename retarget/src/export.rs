@@ -8,7 +8,7 @@
 
 use std::path::Path;
 
-use face::names::{ARKIT_NAMES, NUM_ARKIT, arkit_index};
+use face::names::{ARKIT_NAMES, NUM_ARKIT};
 use serde_json::{Value, json};
 
 use crate::driver::{PuppetPose, Retargeter};
@@ -327,18 +327,12 @@ pub fn live_link_timecode(time_s: f32) -> String {
 }
 
 /// Eye angles `[left yaw, left pitch, right yaw, right pitch]` in radians from the eyeLook
-/// weights: yaw = (look towards the performer's left) x 30 degrees, pitch = (down - up) x
-/// 25 degrees, the same signs as head yaw and pitch (`face::camera`).
+/// weights: the gaze the studio draws ([`face::gaze::eye_angles`]; the eyeLook channels are
+/// the same in ARKit and ICT).
 pub fn eye_angles_rad(arkit: &[f32; NUM_ARKIT]) -> [f32; 4] {
-    let w = |n: &str| arkit_index(n).map_or(0.0, |a| arkit[a]);
-    let yaw = EYE_YAW_RANGE_DEG.to_radians();
-    let pitch = EYE_PITCH_RANGE_DEG.to_radians();
-    [
-        (w("eyeLookOutLeft") - w("eyeLookInLeft")) * yaw,
-        (w("eyeLookDownLeft") - w("eyeLookUpLeft")) * pitch,
-        (w("eyeLookInRight") - w("eyeLookOutRight")) * yaw,
-        (w("eyeLookDownRight") - w("eyeLookUpRight")) * pitch,
-    ]
+    let [[left_yaw, left_pitch], [right_yaw, right_pitch]] =
+        face::gaze::eye_angles(&face::names::arkit_to_ict(arkit));
+    [left_yaw, left_pitch, right_yaw, right_pitch]
 }
 
 /// Live Link Face CSV of the tracked ARKit weights after the mapping's neutral calibration,
