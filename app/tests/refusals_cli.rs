@@ -36,6 +36,19 @@ fn refused(args: &[&str], expect: &[&str]) {
     }
 }
 
+/// `likeness retarget --tracks T --puppet P --out O`.
+fn retarget_args<'a>(tracks: &'a Path, puppet: &'a Path, out: &'a Path) -> [&'a str; 7] {
+    [
+        "retarget",
+        "--tracks",
+        s(tracks),
+        "--puppet",
+        s(puppet),
+        "--out",
+        s(out),
+    ]
+}
+
 /// A 160 x 120 image with a bright square in the top-right corner.
 fn write_image(path: &Path) {
     image::RgbImage::from_fn(160, 120, |x, y| {
@@ -73,28 +86,12 @@ fn retarget_refuses_an_output_that_is_an_input() {
     let before = std::fs::read(&tracks).expect("read");
     for out in [&dotted, &linked] {
         refused(
-            &[
-                "retarget",
-                "--tracks",
-                s(&tracks),
-                "--puppet",
-                s(&puppet),
-                "--out",
-                s(out),
-            ],
+            &retarget_args(&tracks, &puppet, out),
             &["--out", "--tracks", s(out), s(&tracks), "same file"],
         );
     }
     refused(
-        &[
-            "retarget",
-            "--tracks",
-            s(&tracks),
-            "--puppet",
-            s(&puppet),
-            "--out",
-            s(&hard),
-        ],
+        &retarget_args(&tracks, &puppet, &hard),
         &["--out", "--puppet", "same file"],
     );
     refused(
@@ -117,29 +114,13 @@ fn retarget_refuses_an_output_that_is_an_input() {
     let sidecar_json = dir.join("pip.mapping.json");
     assert_eq!(sidecar, sidecar_json);
     refused(
-        &[
-            "retarget",
-            "--tracks",
-            s(&tracks),
-            "--puppet",
-            s(&puppet),
-            "--out",
-            s(&sidecar),
-        ],
+        &retarget_args(&tracks, &puppet, &sidecar),
         &["mapping file", "same file"],
     );
     assert_eq!(std::fs::read(&tracks).expect("read"), before, "tracks kept");
     assert!(std::fs::read(&puppet).expect("read").starts_with(b"glTF"));
     // A new file beside the inputs is fine.
-    let o = likeness(&[
-        "retarget",
-        "--tracks",
-        s(&tracks),
-        "--puppet",
-        s(&puppet),
-        "--out",
-        s(&dir.join("anim.glb")),
-    ]);
+    let o = likeness(&retarget_args(&tracks, &puppet, &dir.join("anim.glb")));
     assert!(o.status.success(), "{}", text(&o));
 }
 
@@ -159,28 +140,12 @@ fn retarget_refuses_an_output_that_is_a_file_the_puppet_names() {
     let mesh = dir.join("mesh.bin");
     std::fs::write(&mesh, &bin).expect("write");
     // It loads and exports as it is.
-    let o = likeness(&[
-        "retarget",
-        "--tracks",
-        s(&tracks),
-        "--puppet",
-        s(&puppet),
-        "--out",
-        s(&dir.join("anim.glb")),
-    ]);
+    let o = likeness(&retarget_args(&tracks, &puppet, &dir.join("anim.glb")));
     assert!(o.status.success(), "{}", text(&o));
     // Its buffer, spelled through `sub/..`, is not an output.
     std::fs::create_dir_all(dir.join("sub")).expect("dir");
     refused(
-        &[
-            "retarget",
-            "--tracks",
-            s(&tracks),
-            "--puppet",
-            s(&puppet),
-            "--out",
-            s(&dir.join("sub/../mesh.bin")),
-        ],
+        &retarget_args(&tracks, &puppet, &dir.join("sub/../mesh.bin")),
         &["--out", "the puppet's buffer 0 (mesh.bin)", "same file"],
     );
     assert_eq!(std::fs::read(&mesh).expect("read"), bin, "the buffer kept");
@@ -378,18 +343,7 @@ fn retarget_refuses_absurd_values_naming_the_file_frame_and_field() {
         let tracks = dir.join(name);
         std::fs::write(&tracks, content).expect("write");
         let out = dir.join("anim.glb");
-        refused(
-            &[
-                "retarget",
-                "--tracks",
-                s(&tracks),
-                "--puppet",
-                s(&puppet),
-                "--out",
-                s(&out),
-            ],
-            &expect,
-        );
+        refused(&retarget_args(&tracks, &puppet, &out), &expect);
         assert!(!out.exists(), "{name}: nothing written");
     }
 }
