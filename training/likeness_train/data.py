@@ -115,6 +115,25 @@ def mirror_batch(batch: Batch, flip: torch.Tensor, channels: list[int]) -> Batch
     )
 
 
+PER_FRAME = ("images", "landmarks", "parsing", "weights", "euler", "translation", "gamma", "focal", "principal")
+PER_PERSON_TRUTH = ("vertices", "dS", "dR0", "dR")
+
+
+def concat_batches(batches: list[Batch]) -> Batch:
+    """One batch of all the people of `batches` (same N frames each), in order; the
+    person-level truth is kept only when every batch has it. Its index is the first's."""
+    if not batches:
+        raise ValueError("concat_batches needs at least one batch")
+    frames = {b.frames for b in batches}
+    if len(frames) != 1:
+        raise ValueError(f"batches of different frame counts cannot be joined: {sorted(frames)}")
+    joined = {key: torch.cat([getattr(b, key) for b in batches]) for key in PER_FRAME + ("identity_coeffs",)}
+    for key in PER_PERSON_TRUTH:
+        parts = [getattr(b, key) for b in batches]
+        joined[key] = torch.cat(parts) if all(p is not None for p in parts) else None
+    return Batch(**joined, people=sum(b.people for b in batches), frames=batches[0].frames, index=batches[0].index)
+
+
 class SyntheticData:
     """Deterministic batches: batch k of seed s is always the same, so training resumes
     exactly and held-out people are simply another seed."""

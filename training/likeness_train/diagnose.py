@@ -4,7 +4,8 @@
    true: pose, light, corrections, the other weights) it sets one weight to 0, 0.5 and 1
    and prints the weighted data terms (photometric, landmark, parsing) per image, averaged
    over the people. A shape whose row barely changes is one the images hardly constrain.
-2. `--fit`: w fitted at the truth. Every value is true except w, which starts at 0.05 and
+2. `--overfit B --data DIR`: the warm-up trained on B fixed batches only (`overfit`).
+3. `--fit`: w fitted at the truth. Every value is true except w, which starts at 0.05 and
    is fitted with Adam on the weighted data terms plus L_reg; the pooled correlation of the
    fitted w with the truth is the most a tracker could get out of these losses (training
    README, "Where it stands").
@@ -81,12 +82,36 @@ def fit_weights_at_truth(batches=(3, 11), people: int = 2, iterations: int = 150
     }
 
 
+def overfit(data: str, batches: int, steps: int, every: int = 50) -> dict:
+    """Whether TrackNet can fit w at all: the warm-up (the training defaults) cycling over
+    the first `batches` batches of the cache `data`; returns the w term's constant floor on
+    those frames and its mean over each `every` steps. Far below the floor: the labels and
+    the network are sound, and what a probe lacks is generalisation."""
+    from .probe import constant_floor
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t = Trainer(TrainConfig(data=data, landmark_warmup_steps=10**9, threads=1), Path(tmp))
+        t.data_index = lambda: t.step % batches
+        truth = torch.cat([t.data.batch(k, t.cfg.people_per_batch).weights for k in range(batches)])
+        values = [t.train_step()["sup"] for _ in range(steps)]
+    curve = [sum(values[k : k + every]) / len(values[k : k + every]) for k in range(0, steps, every)]
+    return {"floor": constant_floor(truth, t.cfg.w_loss), "sup_every": every, "sup": curve}
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--shapes", default=",".join(SHAPES))
     parser.add_argument("--fit", action="store_true", help="also fit w at the truth (~2 min)")
+    parser.add_argument("--overfit", type=int, default=0, metavar="BATCHES", help="only: train the warm-up on the first BATCHES batches of --data and print the w term against its floor")
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--data", type=str, default=None)
     args = parser.parse_args(argv)
     torch.set_flush_denormal(True)
+    if args.overfit:
+        if args.data is None or args.overfit < 1 or args.steps < 1:
+            parser.error("--overfit BATCHES needs --data DIR, BATCHES >= 1 and --steps >= 1")
+        print(json.dumps(overfit(args.data, args.overfit, args.steps)))
+        return
     if args.fit:
         print("w fitted at the truth:", json.dumps(fit_weights_at_truth()))
     for (shape, v), avg in weight_costs(tuple(args.shapes.split(","))).items():

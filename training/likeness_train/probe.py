@@ -106,7 +106,8 @@ def main(argv: list[str] | None = None) -> None:
     steps = max(e["step"] for e in log)
     cache = CachedData(args.data)
     people = config["people_per_batch"]
-    truth = torch.cat([cache.batch(k, people).weights for k in range(min(steps, len(cache)))])
+    read = steps * config.get("warmup_batches_per_step", 1)
+    truth = torch.cat([cache.batch(k, people).weights for k in range(min(read, len(cache)))])
     evaluation = json.loads(args.evaluation.read_text()) if args.evaluation else None
     result = {"w_loss": kind, **verdict(log, constant_floor(truth, kind), evaluation)}
     print(f"w loss {kind}: constant-predictor floor {result['floor']:.3f} per image (over {truth.shape[0]} training frames)")

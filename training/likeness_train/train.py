@@ -32,7 +32,7 @@ from torch import nn
 
 from . import losses as L
 from . import render as R
-from .data import Batch, SyntheticData, mirror_batch, mirror_channels
+from .data import Batch, SyntheticData, concat_batches, mirror_batch, mirror_channels
 from .dataset import CachedData
 from .export import IMAGE_MEAN, IMAGE_STD, git_commit
 from .face import FaceModel
@@ -41,7 +41,10 @@ from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, ModelNet, TrackNe
 
 WARMUP_CHECKPOINT = "warmup.pt"  # the checkpoint at the end of stage 0, beside checkpoint.pt
 # Configuration a resumed run must share with its checkpoint (Trainer.resume).
-RESUME_KEYS = ("input_size", "track_width", "model_width", "track_pool", "track_w_head", "track_w_hidden", "people_per_batch", "frames", "landmark_warmup_steps", "seed")
+RESUME_KEYS = (
+    "input_size", "track_width", "model_width", "track_pool", "track_w_head", "track_w_hidden", "people_per_batch", "frames",
+    "landmark_warmup_steps", "warmup_batches_per_step", "seed",
+)
 # How the supervised w term compares w with the truth (TrainConfig.w_loss says why).
 W_LOSSES = ("sq", "l1", "bce_l1")
 
@@ -92,6 +95,13 @@ class TrainConfig:
     # The warm-up's rate decays like stage 1's (stage 1 then starts again from lr_stage1):
     # NME 9.8 -> 8.4 %, pose 3.1 / 4.0 / 3.0 -> 2.4 / 3.4 / 2.0 degrees at 3,000 steps.
     warmup_lr_decay: bool = True
+    # The warm-up's rate rises linearly from 0 over its first K steps (0 = off): a higher
+    # rate from a fresh BatchNorm network without it diverges in the first steps.
+    warmup_lr_ramp_steps: int = 0
+    # Cached batches (of P people x N frames) each warm-up step reads: B x P x N images per
+    # step. The warm-up reads the cache in order and wraps around at its end (an epoch; the
+    # mirroring differs per pass). 1,000 steps of 16 images did not generalise (issue 31).
+    warmup_batches_per_step: int = 1
     # Not in the paper (0 = off): the warm-up also fits w to the synthetic truth,
     # lambda_sup * sum_i (w_i - w_i^true)^2 per image. The paper's TrackNet learnt w
     # self-supervised from 94k videos; from scratch on our budget it does not (README,
@@ -260,6 +270,21 @@ class Trainer:
             return self.step
         return self.step - self.cfg.landmark_warmup_steps
 
+    def warmup_indices(self) -> list[int]:
+        """The batches a warm-up step reads: `warmup_batches_per_step` consecutive ones, in
+        order over the cache and around again (on-the-fly data has no end)."""
+        k = self.cfg.warmup_batches_per_step
+        first = self.data_index() * k
+        size = len(self.data) if isinstance(self.data, CachedData) else None
+        return [(first + j) % size if size else first + j for j in range(k)]
+
+    def read_batch(self) -> Batch:
+        if self.stage == 0 and self.cfg.warmup_batches_per_step > 1:
+            return concat_batches([self.data.batch(k, self.cfg.people_per_batch) for k in self.warmup_indices()])
+        if self.stage == 0:
+            return self.data.batch(self.warmup_indices()[0], self.cfg.people_per_batch)
+        return self.data.batch(self.data_index(), self.cfg.people_per_batch)
+
     def elapsed(self) -> float:
         return self.elapsed_before + time.time() - self.started
 
@@ -355,7 +380,7 @@ class Trainer:
         return self.stage == 1 and self.step < self.cfg.landmark_warmup_steps + self.cfg.stage1_track_frozen_steps
 
     def train_step(self) -> dict[str, float]:
-        batch = self.data.batch(self.data_index(), self.cfg.people_per_batch)
+        batch = self.read_batch()
         batch = mirror_batch(batch, self.flips(batch), self.mirror)
         if self.stage == 0:
             return self.warmup_step(batch)
@@ -481,9 +506,10 @@ def stage1_learning_rate(step: int, cfg: TrainConfig) -> float:
 def warmup_learning_rate(step: int, cfg: TrainConfig) -> float:
     """The warm-up decays like stage 1 when `warmup_lr_decay` is set (stage 1 then starts
     again from lr_stage1)."""
+    ramp = min(1.0, (step + 1) / cfg.warmup_lr_ramp_steps) if cfg.warmup_lr_ramp_steps > 0 else 1.0
     if not cfg.warmup_lr_decay:
-        return cfg.lr_stage1
-    return decayed_learning_rate(step, cfg.landmark_warmup_steps, cfg)
+        return ramp * cfg.lr_stage1
+    return ramp * decayed_learning_rate(step, cfg.landmark_warmup_steps, cfg)
 
 
 # TrackNet's translation is for a camera of this field of view (the middle of the synthetic
@@ -568,7 +594,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True)
     defaults = TrainConfig()
-    for name in ("input_size", "people_per_batch", "frames", "landmark_warmup_steps", "stage1_track_frozen_steps", "stage1_steps", "stage2_steps", "seed", "threads", "track_w_hidden"):
+    for name in ("input_size", "people_per_batch", "frames", "landmark_warmup_steps", "stage1_track_frozen_steps", "stage1_steps", "stage2_steps", "seed", "threads", "track_w_hidden", "warmup_lr_ramp_steps", "warmup_batches_per_step"):
         parser.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(defaults, name))
     for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "lr_decay_from", "lr_final_ratio", "checkpoint_every_s", "warmup_supervision", "warmup_light_supervision", "stage1_track_lr_ratio", "track_rotation_scale", "track_translation_scale", "track_w_gain", "track_w_grad_scale", "warmup_pose_supervision", "flip_probability"):
         parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(defaults, name))
@@ -601,6 +627,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
         "lr_decay_from": (0.0, 1.0), "lr_final_ratio": (0.0, 1.0), "track_w_grad_scale": (1e-6, 1e6), "warmup_supervision": (0.0, 1e6),
         "warmup_light_supervision": (0.0, 1e6), "stage1_track_frozen_steps": (0, float("inf")), "stage1_track_lr_ratio": (0.0, 1e3),
         "warmup_pose_supervision": (0.0, 1e6), "flip_probability": (0.0, 1.0), "track_w_hidden": (1, 8192),
+        "warmup_lr_ramp_steps": (0, float("inf")), "warmup_batches_per_step": (1, 64),
     }
     for name, (low, high) in checks.items():
         if not (low <= args[name] <= high):

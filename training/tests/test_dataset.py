@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from likeness_train.data import SyntheticData
+from likeness_train.data import SyntheticData, concat_batches
 from likeness_train.dataset import CacheSpec, CachedData, estimate_bytes, shard_path, write_cache
 from likeness_train.train import TrainConfig, Trainer
 
@@ -94,3 +94,24 @@ def test_disk_estimate():
     assert est["total"] == pytest.approx(1.07e6, rel=0.01)
     assert est["parsing_float16_soft"] / est["parsing_labels"] == 18
     assert np.isclose(est["total"] * 5000 / 1e9, 5.35, rtol=0.01)
+
+
+def test_warmup_reads_several_batches_per_step_and_wraps_around_the_cache(cache, tmp_path):
+    """--warmup-batches-per-step 2 on a 3-batch cache: step 0 reads batches 0, 1; step 1
+    reads 2, then 0 again (the next pass); the step's batch is both joined in order."""
+    config = TrainConfig(
+        people_per_batch=1, frames=2, landmark_warmup_steps=4, stage1_steps=0, stage2_steps=0, track_width=0.25,
+        model_width=0.25, data=str(cache), warmup_batches_per_step=2, flip_probability=0.0,
+    )
+    trainer = Trainer(config, tmp_path / "run")
+    assert trainer.warmup_indices() == [0, 1]
+    values = trainer.train_step()
+    assert all(math.isfinite(v) for v in values.values())
+    assert trainer.warmup_indices() == [2, 0]
+    joined = trainer.read_batch()
+    two, zero = trainer.data.batch(2, 1), trainer.data.batch(0, 1)
+    assert (joined.people, joined.frames) == (2, 2)
+    assert torch.equal(joined.images, torch.cat([two.images, zero.images]))
+    assert torch.equal(joined.weights, torch.cat([two.weights, zero.weights]))
+    with pytest.raises(ValueError):
+        concat_batches([])

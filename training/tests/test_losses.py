@@ -239,3 +239,15 @@ def test_diagnose_fit_at_truth_recovers_the_weights():
     result = fit_weights_at_truth(batches=(3,), people=1, iterations=80)
     assert result["pooled_correlation"] > 0.5, result
     assert result["mae"] < result["start_mae"], result
+
+
+def test_overfit_cycles_over_the_given_batches_and_reports_the_floor(tmp_path):
+    """`diagnose --overfit`: the warm-up on a fixed set of batches (here 1, 8 steps)."""
+    from likeness_train.dataset import CacheSpec, write_cache
+    from likeness_train.diagnose import overfit
+
+    spec = CacheSpec(seed=1, batches=1, people_per_batch=4, frames=4, image_size=128, batches_per_shard=1)
+    write_cache(tmp_path / "c", spec, workers=1)
+    result = overfit(str(tmp_path / "c"), batches=1, steps=8, every=4)
+    assert len(result["sup"]) == 2 and result["floor"] > 0
+    assert all(math.isfinite(v) for v in result["sup"])

@@ -97,3 +97,35 @@ def test_left_and_right_shapes_are_mirror_images_at_the_landmarks(face_model, na
     deltas = face_model.template.expression_deltas[:, face_model.template.landmarks_68]
     left, right = deltas[names.index(f"{name}_L")], deltas[names.index(f"{name}_R")]
     assert np.abs(left[MIRROR_68] * [-1, 1, 1] - right).max() < 0.05
+
+
+def test_a_mirrored_gaze_is_the_other_eye_turned_the_mirrored_way(face_model):
+    """Swapping the eyeLook channels (`mirror_channels`) is right for the turned eyeballs
+    too: the eyes turned by w, seen in a mirror, are the eyes turned by the swapped w (as
+    point sets: the left eyeball mirrored is the right one). The wrong mapping, w unswapped,
+    is far off, so the check can fail."""
+    from likeness_train.face import EYEBALL_PARTS
+
+    names = face_model.expression_names
+    channels = mirror_channels(names)
+    w = torch.zeros(3, 53)
+    for frame, values in enumerate(({"eyeLookOut_L": 0.8, "eyeLookIn_R": 0.8}, {"eyeLookUp_L": 0.6, "eyeLookDown_R": 0.3}, {"eyeLookIn_L": 0.5, "eyeLookDown_L": 0.7, "eyeLookOut_R": 0.2})):
+        for name, value in values.items():
+            w[frame, names.index(name)] = value
+    turned = face_model.turn_eyes(face_model.shape(w), w).double()
+    swapped = face_model.turn_eyes(face_model.shape(w[:, channels]), w[:, channels]).double()
+    unswapped_neutral = face_model.shape(torch.zeros(1, 53)).double()
+    parts = [slice(*face_model.template.parts[p]) for p in EYEBALL_PARTS]
+    mirror = torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64)
+
+    def gap(a, b):  # the farthest point of set a from set b (cm)
+        return float(torch.cdist(a, b).min(dim=1).values.max())
+
+    # How symmetric ICT's two eyeballs are to begin with.
+    rest = max(gap(unswapped_neutral[0, parts[k]] * mirror, unswapped_neutral[0, parts[1 - k]]) for k in (0, 1))
+    for frame in range(3):
+        for k in (0, 1):
+            seen = turned[frame, parts[k]] * mirror
+            assert gap(seen, swapped[frame, parts[1 - k]]) < rest + 0.01, (frame, k)
+            wrong = face_model.turn_eyes(face_model.shape(w), w).double()[frame, parts[1 - k]]
+            assert gap(seen, wrong) > rest + 0.05, (frame, k)

@@ -69,7 +69,8 @@ def test_camera_translation_round_trips_and_keeps_the_projection():
 @pytest.mark.parametrize(
     "flag",
     [["--lr-decay-from", "1.5"], ["--lr-final-ratio", "nan"], ["--landmark-warmup-steps", "-1"], ["--track-w-grad-scale", "0"], ["--warmup-supervision", "-1"],
-     ["--warmup-light-supervision", "nan"], ["--stage1-track-frozen-steps", "-1"], ["--stage1-track-lr-ratio", "-1"]],
+     ["--warmup-light-supervision", "nan"], ["--stage1-track-frozen-steps", "-1"], ["--stage1-track-lr-ratio", "-1"],
+     ["--warmup-lr-ramp-steps", "-5"], ["--warmup-batches-per-step", "0"], ["--warmup-batches-per-step", "65"]],
 )
 def test_schedule_flags_out_of_range_are_refused_by_name(flag, capsys):
     from likeness_train.train import config_from_args
@@ -77,3 +78,14 @@ def test_schedule_flags_out_of_range_are_refused_by_name(flag, capsys):
     with pytest.raises(SystemExit):
         config_from_args(["--out", "x", *flag])
     assert flag[0] in capsys.readouterr().err
+
+
+def test_warmup_ramp_rises_linearly_then_follows_the_schedule():
+    cfg = TrainConfig(landmark_warmup_steps=400, lr_stage1=1e-3, lr_decay_from=0.5, lr_final_ratio=0.02, warmup_lr_ramp_steps=100)
+    assert warmup_learning_rate(0, cfg) == pytest.approx(1e-5)
+    assert warmup_learning_rate(49, cfg) == pytest.approx(5e-4)
+    assert warmup_learning_rate(99, cfg) == pytest.approx(1e-3)
+    assert warmup_learning_rate(150, cfg) == pytest.approx(1e-3)
+    unramped = TrainConfig(landmark_warmup_steps=400, lr_stage1=1e-3, lr_decay_from=0.5, lr_final_ratio=0.02)
+    for s in (100, 250, 399):
+        assert warmup_learning_rate(s, cfg) == pytest.approx(warmup_learning_rate(s, unramped))
