@@ -99,6 +99,21 @@ fn jaw_open_and_smile_differs_from_neutral() {
 }
 
 #[test]
+fn the_eyes_turn_with_the_gaze() {
+    // Looking to the subject's left and down: both eyeballs turn (face::gaze), the lids
+    // hardly move, so what changes is the irises.
+    let neutral = render(StudioView::Shaded, "", Orbit::default());
+    let gaze = render(
+        StudioView::Shaded,
+        "eyeLookOutLeft=1,eyeLookInRight=1,eyeLookDownLeft=0.5,eyeLookDownRight=0.5",
+        Orbit::default(),
+    );
+    assert_matches_golden(&golden("gaze_left_down"), &gaze, Tolerance::default());
+    let changed = changed_pixels(&neutral, &gaze);
+    assert!(changed > 150, "the gaze changed only {changed} pixels");
+}
+
+#[test]
 fn jaw_open_mask_heatmap() {
     let jaw = face::names::ict_index("jawOpen").expect("name");
     let image = render(StudioView::Mask(jaw), "", Orbit::default());

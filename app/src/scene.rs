@@ -120,6 +120,8 @@ pub fn mesh_data(template: &Template, person: &PersonalizedBlendshapes) -> MeshD
         corners,
         indices,
         landmark_vertices: template.landmarks_68.to_vec(),
+        // The studio shows the tracked gaze: the eyeballs turn about the person's eye centres.
+        eyes: face::gaze::Eyes::new(template, &person.base),
     }
 }
 

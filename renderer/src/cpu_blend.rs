@@ -16,13 +16,14 @@ struct SparseShape {
     normal: Vec<[f32; 3]>,
 }
 
-/// The mesh data the CPU blend needs: base positions and normals, and each shape's sparse
-/// deltas.
+/// The mesh data the CPU blend needs: base positions and normals, each shape's sparse
+/// deltas, and the eyeballs that turn with the gaze.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub(crate) struct CpuBlend {
     base_positions: Vec<[f32; 3]>,
     base_normals: Vec<[f32; 3]>,
     shapes: Vec<SparseShape>,
+    eyes: Option<face::gaze::Eyes>,
 }
 
 /// `face.wgsl`'s `unit_normal`: a degenerate sum falls back to "towards camera".
@@ -63,6 +64,7 @@ impl CpuBlend {
             base_positions: mesh.base_positions.clone(),
             base_normals: mesh.base_normals.clone(),
             shapes,
+            eyes: mesh.eyes.clone(),
         }
     }
 
@@ -75,7 +77,7 @@ impl CpuBlend {
     /// The blended texture's texels (`texel_count` of them, zero-padded): [0, V) blended
     /// positions, [V, 2V) unit normals, as `fs_blend` writes them. Shapes are added in
     /// ascending order, the order of the GPU's active-weight list, and zero weights are
-    /// skipped as they are there.
+    /// skipped as they are there; then the eyeballs turn (`EyePose`), as there.
     pub(crate) fn texels(&self, weights: &[f32], texel_count: usize) -> Vec<[f32; 4]> {
         let mut positions = self.base_positions.clone();
         let mut normals = self.base_normals.clone();
@@ -96,10 +98,21 @@ impl CpuBlend {
                 }
             }
         }
+        let eyes = crate::eyes::EyePose::new(self.eyes.as_ref(), weights);
         let mut out = Vec::with_capacity(texel_count.max(2 * positions.len()));
-        out.extend(positions.iter().map(|p| [p[0], p[1], p[2], 0.0]));
-        out.extend(normals.iter().map(|&n| {
+        out.extend(positions.iter().enumerate().map(|(v, &p)| {
+            let p = match eyes.eye_of(v as u32) {
+                Some(e) => eyes.turn_point(e, p),
+                None => p,
+            };
+            [p[0], p[1], p[2], 0.0]
+        }));
+        out.extend(normals.iter().enumerate().map(|(v, &n)| {
             let u = unit_normal(n);
+            let u = match eyes.eye_of(v as u32) {
+                Some(e) => eyes.turn(e, u),
+                None => u,
+            };
             [u[0], u[1], u[2], 0.0]
         }));
         out.resize(texel_count.max(out.len()), [0.0; 4]);
@@ -137,6 +150,7 @@ mod tests {
             corners: Vec::new(),
             indices: Vec::new(),
             landmark_vertices: Vec::new(),
+            eyes: None,
         }
     }
 

@@ -60,6 +60,11 @@ struct Frame {
 struct Weights {
     // x: number of active (index, weight) pairs
     count: vec4<u32>,
+    // Eyeballs turned by the gaze after the blend (EyePose on the Rust side): vertices
+    // [x, y) turn as the first eye, [z, w) as the second; empty for an eye that does not turn.
+    eye_ranges: vec4<u32>,
+    // Per eye: the three rows of its rotation, then the centre it turns about (xyz).
+    eye_frames: array<vec4<f32>, 8>,
     pairs: array<vec4<f32>, WEIGHT_VEC4S>,
 }
 
@@ -120,12 +125,47 @@ fn unit_normal(n: vec3<f32>) -> vec3<f32> {
     return select(vec3<f32>(0.0, 0.0, 1.0), n / max(len, 1e-20), len > 1e-12);
 }
 
+// Which eye turns vertex v: 0, 1, or 2 for none.
+fn eye_of(v: u32) -> u32 {
+    let r = weights.eye_ranges;
+    if v >= r.x && v < r.y {
+        return 0u;
+    }
+    if v >= r.z && v < r.w {
+        return 1u;
+    }
+    return 2u;
+}
+
+// R d for eye e, a dot product per row (EyePose::turn computes it the same way).
+fn eye_turn(e: u32, d: vec3<f32>) -> vec3<f32> {
+    let f = 4u * e;
+    return vec3<f32>(
+        dot(weights.eye_frames[f].xyz, d),
+        dot(weights.eye_frames[f + 1u].xyz, d),
+        dot(weights.eye_frames[f + 2u].xyz, d),
+    );
+}
+
+// The blended position or unit normal of vertex v with its eyeball turned, if it is one.
+fn turned(v: u32, x: vec3<f32>, is_normal: bool) -> vec3<f32> {
+    let e = eye_of(v);
+    if e > 1u {
+        return x;
+    }
+    if is_normal {
+        return eye_turn(e, x);
+    }
+    let c = weights.eye_frames[4u * e + 3u].xyz;
+    return c + eye_turn(e, x - c);
+}
+
 fn blend_vertex(v: u32) -> Blended {
     let nv = frame.mode.w;
     let k_total = frame.counts.x;
     let p = blend_texels(v, 2u * nv + v);
     let n = blend_texels(nv + v, (2u + k_total) * nv + v);
-    return Blended(p, unit_normal(n));
+    return Blended(turned(v, p, false), turned(v, unit_normal(n), true));
 }
 
 fn blended_texel(i: u32) -> vec4<f32> {
@@ -404,5 +444,5 @@ fn fs_blend(in: BgOut) -> @location(0) vec4<f32> {
     let v = select(i, i - nv, is_normal);
     let delta_block = select(2u, 2u + frame.counts.x, is_normal);
     let acc = blend_texels(i, delta_block * nv + v);
-    return vec4<f32>(select(acc, unit_normal(acc), is_normal), 0.0);
+    return vec4<f32>(turned(v, select(acc, unit_normal(acc), is_normal), is_normal), 0.0);
 }

@@ -26,13 +26,19 @@ struct FrameUniform {
     counts: [u32; 4],
 }
 
-/// Mirrors `Weights` in `face.wgsl`: a count, then (index, weight) pairs, two per vec4.
+/// Mirrors `Weights` in `face.wgsl`: a count, the eyes' turn (`EyePose::uniform`), then
+/// (index, weight) pairs, two per vec4.
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct WeightsUniform {
     count: [u32; 4],
+    eye_ranges: [u32; 4],
+    eye_frames: [[f32; 4]; 8],
     pairs: [[f32; 4]; MAX_BLENDSHAPES / 2],
 }
+
+/// Bytes of [`WeightsUniform`] before `pairs`.
+const WEIGHTS_HEADER_BYTES: usize = std::mem::offset_of!(WeightsUniform, pairs);
 
 /// Depth (and MSAA colour) attachments, recreated when the render size changes.
 struct Attachments {
@@ -186,6 +192,8 @@ pub struct FaceRenderer {
     /// The K weights last uploaded, so that re-setting the same values (a UI calling
     /// [`FaceRenderer::set_weights`] every frame) neither uploads nor re-blends.
     weights: Vec<f32>,
+    /// The mesh's eyeballs ([`MeshData::eyes`]), turned by the weights' gaze.
+    eyes: Option<face::gaze::Eyes>,
     bind_group_layout: wgpu::BindGroupLayout,
     bind_group: wgpu::BindGroup,
 
@@ -552,6 +560,7 @@ impl FaceRenderer {
             blend_dirty: AtomicBool::new(true),
             // Matches the zeroed weights buffer: no active shape.
             weights: vec![0.0; counts.shapes as usize],
+            eyes: mesh.eyes.clone(),
             bind_group_layout,
             bind_group,
             corner_buffer,
@@ -667,9 +676,19 @@ impl FaceRenderer {
             return Ok(());
         }
         self.weights.copy_from_slice(weights);
+        self.upload_weights(queue);
+        self.upload_cpu_blend(queue);
+        self.content_stamp = new_content_stamp();
+        Ok(())
+    }
+
+    /// Uploads the active weights and the eyes' turn for them, and marks the blend dirty.
+    fn upload_weights(&self, queue: &wgpu::Queue) {
         let mut uniform = WeightsUniform::zeroed();
+        (uniform.eye_ranges, uniform.eye_frames) =
+            crate::eyes::EyePose::new(self.eyes.as_ref(), &self.weights).uniform();
         let mut n = 0usize;
-        for (i, &w) in weights.iter().enumerate() {
+        for (i, &w) in self.weights.iter().enumerate() {
             if w != 0.0 {
                 // Indices <= 255 are exact in f32.
                 uniform.pairs[n / 2][(n % 2) * 2] = i as f32;
@@ -679,16 +698,13 @@ impl FaceRenderer {
         }
         uniform.count[0] = n as u32;
         // Only the used part of the array goes over the bus.
-        let used = 16 + n.div_ceil(2) * 16;
+        let used = WEIGHTS_HEADER_BYTES + n.div_ceil(2) * 16;
         queue.write_buffer(
             &self.weights_buffer,
             0,
             &bytemuck::bytes_of(&uniform)[..used],
         );
         self.blend_dirty.store(true, Ordering::Release);
-        self.upload_cpu_blend(queue);
-        self.content_stamp = new_content_stamp();
-        Ok(())
     }
 
     /// Changes whenever anything that [`Self::render`] draws changes (weights, geometry,
@@ -785,6 +801,11 @@ impl FaceRenderer {
             )));
         }
         self.upload_geometry(queue, mesh);
+        if self.eyes != mesh.eyes {
+            // New centres (another identity) or eyes added or removed: the turn changes too.
+            self.eyes = mesh.eyes.clone();
+            self.upload_weights(queue);
+        }
         self.content_stamp = new_content_stamp();
         Ok(())
     }

@@ -13,8 +13,12 @@
 //! texture, and the shaded view has fragment-shader pipelines of its own, since a software
 //! rasteriser pays for every branch of a general shader at every pixel.
 //!
+//! Gaze: a mesh may name its eyeballs ([`MeshData::eyes`]); every blend path then turns
+//! them after the blend by the eyeLook weights' angles ([`face::gaze`], the mapping the
+//! training data and the Live Link export use), so the studio shows where a face looks.
+//!
 //! It must not do anything else: no UI, no model loading, no ONNX/inference, no knowledge of
-//! the face model beyond its shared SH lighting definition. Input is plain data ([`MeshData`], [`TextureLayers`], weights); the app
+//! the face model beyond its shared SH lighting and gaze definitions. Input is plain data ([`MeshData`], [`TextureLayers`], weights); the app
 //! builds it from the `face` crate. Keeping the boundary this narrow lets the renderer be
 //! tested with synthetic meshes ([`synthetic`]) and reused by any crate's tests ([`golden`]).
 //!
@@ -35,6 +39,7 @@
 mod camera;
 mod cpu_blend;
 mod error;
+mod eyes;
 mod face_renderer;
 pub mod golden;
 mod mesh;

@@ -20,6 +20,10 @@ pub struct MeshData {
     pub indices: Vec<u32>,
     /// Mesh vertex indices drawn as dots in [`crate::ViewMode::Landmarks`].
     pub landmark_vertices: Vec<u32>,
+    /// Eyeballs that turn with the gaze ([`face::gaze`]): each eye's vertex range and the
+    /// centre it turns about, after the blend, by the angles of the eyeLook weights. Only for
+    /// the 53 ICT-ordered blendshapes; `None` for a mesh without eyes (or a puppet's).
+    pub eyes: Option<face::gaze::Eyes>,
 }
 
 /// One render vertex: which mesh vertex it shows, and where in the albedo texture array.
@@ -158,6 +162,24 @@ impl MeshData {
                 self.indices[i],
                 self.corners.len()
             ));
+        }
+        if let Some(eyes) = &self.eyes {
+            if k != face::NUM_BLENDSHAPES {
+                return bad(format!(
+                    "eyes turn with ICT's {} blendshapes, the mesh has {k}",
+                    face::NUM_BLENDSHAPES
+                ));
+            }
+            for (e, (range, centre)) in eyes.ranges.iter().zip(&eyes.centres).enumerate() {
+                if range.start > range.end || range.end > v {
+                    return bad(format!(
+                        "eye {e}: vertices {range:?} are out of range (V = {v})"
+                    ));
+                }
+                if !centre.is_finite() {
+                    return bad(format!("eye {e}: centre {centre} is not finite"));
+                }
+            }
         }
         if let Some(i) = self.landmark_vertices.iter().position(|&l| l as usize >= v) {
             return bad(format!(
@@ -312,6 +334,7 @@ mod tests {
             corners,
             indices: vec![0, 1, 2, 0, 2, 3],
             landmark_vertices: vec![1],
+            eyes: None,
         }
     }
 
@@ -345,6 +368,36 @@ mod tests {
                 .to_string()
                 .contains("blend_deltas[5]")
         );
+    }
+
+    #[test]
+    fn rejects_eyes_it_cannot_turn() {
+        let eyes = |end: usize, centre: f32| face::gaze::Eyes {
+            ranges: [0..2, 2..end],
+            centres: [glam::Vec3::ZERO, glam::Vec3::splat(centre)],
+        };
+        // Two shapes, not ICT's 53.
+        let mut m = quad();
+        m.eyes = Some(eyes(4, 0.0));
+        assert!(m.validate().unwrap_err().to_string().contains("53"));
+        let with_53 = |eyes| {
+            let mut m = quad();
+            m.blend_deltas = vec![[0.0; 3]; 4 * face::NUM_BLENDSHAPES];
+            m.normal_deltas = m.blend_deltas.clone();
+            m.eyes = Some(eyes);
+            m
+        };
+        assert!(with_53(eyes(4, 0.0)).validate().is_ok());
+        let err = with_53(eyes(5, 0.0)).validate().unwrap_err().to_string();
+        assert!(
+            err.contains("eye 1") && err.contains("out of range"),
+            "{err}"
+        );
+        let err = with_53(eyes(4, f32::NAN))
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("eye 1") && err.contains("not finite"), "{err}");
     }
 
     #[test]

@@ -134,6 +134,7 @@ pub fn uv_sphere(rings: u32, segments: u32, shapes: usize) -> MeshData {
         corners,
         indices,
         landmark_vertices,
+        eyes: None,
     }
 }
 

@@ -531,3 +531,138 @@ fn cpu_blend_follows_weight_and_geometry_changes() {
     let wider = r.render_image(SIZE, SIZE, &p).unwrap();
     assert!(changed_pixels(&posed, &wider, 8) > 500);
 }
+
+/// The sphere as "the left eyeball" (every vertex, turning about its centre, the origin)
+/// with its shapes' deltas zeroed, so only the gaze moves it.
+fn eyeball() -> MeshData {
+    let mut mesh = uv_sphere(32, 48, face::NUM_BLENDSHAPES);
+    mesh.blend_deltas.fill([0.0; 3]);
+    mesh.normal_deltas.fill([0.0; 3]);
+    let v = mesh.vertex_count();
+    mesh.eyes = Some(face::gaze::Eyes {
+        ranges: [0..v, v..v],
+        centres: [Vec3::ZERO; 2],
+    });
+    mesh
+}
+
+#[test]
+fn a_turned_eye_is_the_still_eye_seen_from_a_turned_camera() {
+    // Turning the eyeball by R before the camera V is the camera V R on the still eyeball:
+    // the same positions, and the same view-space normals, so the same shading. An
+    // expectation that needs no golden, on every blend path.
+    let mesh = eyeball();
+    let albedo = checker_albedo(128, 8);
+    let mut gaze = vec![0.0; face::NUM_BLENDSHAPES];
+    let set = |w: &mut Vec<f32>, name: &str, v: f32| {
+        w[face::names::ict_index(name).expect("ICT name")] = v;
+    };
+    set(&mut gaze, "eyeLookOut_L", 1.0);
+    set(&mut gaze, "eyeLookDown_L", 0.6);
+    // The right eye's channels turn nothing here: its range is empty.
+    set(&mut gaze, "eyeLookUp_R", 1.0);
+    let weights: [f32; face::NUM_BLENDSHAPES] = gaze.clone().try_into().expect("53");
+    let rotation = face::gaze::eye_rotation(face::gaze::eye_angles(&weights)[0]);
+    let turned_camera = {
+        let c = camera(SIZE);
+        Camera::from_intrinsics(
+            0.98 * SIZE as f32,
+            SIZE as f32 / 2.0,
+            SIZE as f32 / 2.0,
+            SIZE,
+            SIZE,
+            0.1,
+            20.0,
+            c.view_from_model * Mat4::from_mat3(rotation),
+        )
+    };
+    for path in [BlendPath::PrePass, BlendPath::PerVertex, BlendPath::Cpu] {
+        let mut r = forced(&mesh, &albedo, path);
+        let still = r
+            .render_image(SIZE, SIZE, &params(ViewMode::Shaded))
+            .unwrap();
+        r.face.set_weights(&r.queue, &gaze).unwrap();
+        let turned = r
+            .render_image(SIZE, SIZE, &params(ViewMode::Shaded))
+            .unwrap();
+        r.face
+            .set_weights(&r.queue, &vec![0.0; face::NUM_BLENDSHAPES])
+            .unwrap();
+        let mut seen = params(ViewMode::Shaded);
+        seen.camera = turned_camera;
+        let expected = r.render_image(SIZE, SIZE, &seen).unwrap();
+        let cmp = compare(&turned, &expected, Tolerance::default()).expect("same size");
+        assert!(
+            cmp.passes(Tolerance::default()),
+            "{path:?}: {} pixels off, max diff {}",
+            cmp.pixels_outside,
+            cmp.max_diff
+        );
+        // And the gaze did move the eye: the checker's squares moved across the disc.
+        let moved = changed_pixels(&still, &turned, 40);
+        assert!(moved > 3000, "{path:?}: only {moved} pixels changed");
+    }
+}
+
+#[test]
+fn eyes_follow_new_centres_from_set_mesh_deltas() {
+    // Moving the centre off the sphere's: the turn then also shifts the sphere.
+    let mesh = eyeball();
+    let albedo = checker_albedo(128, 8);
+    let mut gaze = vec![0.0; face::NUM_BLENDSHAPES];
+    gaze[face::names::ict_index("eyeLookIn_L").expect("ICT name")] = 1.0;
+    for path in [BlendPath::PrePass, BlendPath::Cpu] {
+        let mut r = forced(&mesh, &albedo, path);
+        r.face.set_weights(&r.queue, &gaze).unwrap();
+        let about_origin = r
+            .render_image(SIZE, SIZE, &params(ViewMode::Shaded))
+            .unwrap();
+        let mut moved = mesh.clone();
+        if let Some(eyes) = moved.eyes.as_mut() {
+            eyes.centres[0] = Vec3::new(0.0, 0.0, -1.0);
+        }
+        r.face.set_mesh_deltas(&r.queue, &moved).unwrap();
+        let about_back = r
+            .render_image(SIZE, SIZE, &params(ViewMode::Shaded))
+            .unwrap();
+        // Yaw -30 degrees about (0, 0, -1) carries the sphere's centre to
+        // (-sin 30, 0, cos 30 - 1): half a radius sideways, ~40 px at this size.
+        let shift = changed_pixels(&about_origin, &about_back, 40);
+        assert!(shift > 2000, "{path:?}: only {shift} pixels changed");
+        let expected_centre = Vec3::new(
+            -(30f32.to_radians().sin()),
+            0.0,
+            30f32.to_radians().cos() - 1.0,
+        );
+        let cam = camera(SIZE);
+        // The sphere's new centre is covered, and the far side of the old disc is empty.
+        let background = FrameParams::new(cam).background;
+        let is_background =
+            |p: [u8; 4]| (0..3).all(|c| (p[c] as f32 - background[c] * 255.0).abs() < 3.0);
+        let centre = pixel_at(&about_back, &cam, expected_centre + Vec3::Z);
+        assert!(
+            !is_background(centre),
+            "{path:?}: the new centre shows {centre:?}"
+        );
+        let far_edge = pixel_at(&about_back, &cam, Vec3::new(0.95, 0.0, 0.0));
+        assert!(
+            is_background(far_edge),
+            "{path:?}: {far_edge:?} is not the background"
+        );
+        assert!(!is_background(pixel_at(
+            &about_origin,
+            &cam,
+            Vec3::new(0.95, 0.0, 0.0)
+        )));
+    }
+}
+
+#[test]
+fn eyes_on_a_mesh_without_icts_shapes_are_refused() {
+    let mut mesh = sphere();
+    mesh.eyes = eyeball().eyes;
+    let err = OffscreenRenderer::new(&mesh, &checker_albedo(128, 8))
+        .err()
+        .expect("refused");
+    assert!(matches!(err, RenderError::InvalidMesh(_)), "{err}");
+}
