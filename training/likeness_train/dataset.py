@@ -229,6 +229,15 @@ class CachedData:
                 self._shard = (shard, {key: z[key] for key in z.files})
         return self._shard[1]
 
+    def weights(self, index: int) -> torch.Tensor:
+        """Batch `index`'s true w [people x frames, 53] without decoding its images: a
+        `batch(...)`'s tensors are views that keep its decoded arrays alive (~8 MB a batch),
+        so reading 4,000 batches' w through `batch` fills the machine's memory."""
+        shard, offset = divmod(index, self.spec.batches_per_shard)
+        if index >= self.spec.batches or not shard_path(self.directory, shard).is_file():
+            raise IndexError(f"batch {index} is not in the cache {self.directory} ({self.spec.batches} batches)")
+        return torch.from_numpy(np.array(self._arrays(shard)["weights"][offset], dtype=np.float32))
+
     def batch(self, index: int, people: int) -> Batch:
         if people != self.spec.people_per_batch:
             raise ValueError(f"cache {self.directory} has {self.spec.people_per_batch} people per batch, asked for {people}")

@@ -47,6 +47,14 @@ def test_cached_batch_equals_rendered_batch(cache, synthetic):
     assert (got.index, got.people, got.frames) == (2, 1, 2)
 
 
+def test_weights_alone_are_the_batches_weights_and_beyond_the_cache_is_an_error(cache, synthetic):
+    data = CachedData(cache)
+    for index in (0, 1, 2):
+        assert torch.equal(data.weights(index), synthetic.batch(index, 1).weights)
+    with pytest.raises(IndexError):
+        data.weights(3)
+
+
 def test_cache_resumes_and_falls_back(cache, synthetic, capsys):
     before = shard_path(cache, 0).stat().st_mtime_ns
     shard_path(cache, 1).unlink()
