@@ -259,6 +259,32 @@ class CachedData:
         return batch
 
 
+class CacheUnion:
+    """Several caches read as one, for the warm-up's extra people (`--extra-data`): batch k
+    is batch k // M of member k % M, so every member is read from the first step on, and an
+    epoch is M x the shortest member (a longer member's tail is not read)."""
+
+    def __init__(self, members: list[CachedData]):
+        if not members:
+            raise ValueError("CacheUnion needs at least one cache")
+        shapes = {(m.spec.people_per_batch, m.spec.frames, m.spec.image_size) for m in members}
+        if len(shapes) != 1:
+            raise ValueError(f"caches of different (people per batch, frames, image size) cannot be read as one: {sorted(shapes)}")
+        seeds = [m.spec.seed for m in members]
+        if len(set(seeds)) != len(seeds):
+            raise ValueError(f"two caches hold the same seed's people ({seeds}): the union would repeat them")
+        self.members = members
+        self.spec = members[0].spec
+        self.length = len(members) * min(len(m) for m in members)
+
+    def __len__(self) -> int:
+        return self.length
+
+    def batch(self, index: int, people: int) -> Batch:
+        member, local = index % len(self.members), index // len(self.members)
+        return self.members[member].batch(local, people)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True)

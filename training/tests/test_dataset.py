@@ -123,3 +123,61 @@ def test_warmup_reads_several_batches_per_step_and_wraps_around_the_cache(cache,
     assert torch.equal(joined.weights, torch.cat([two.weights, zero.weights]))
     with pytest.raises(ValueError):
         concat_batches([])
+
+
+@pytest.fixture(scope="module")
+def cache_seed2(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("cache2")
+    assert write_cache(directory, CacheSpec(**{**SPEC, "seed": 2, "batches": 2}), workers=1) == 1
+    return directory
+
+
+def test_warmup_reads_the_extra_caches_interleaved(cache, cache_seed2, face_model, face_region_model, tmp_path):
+    """--extra-data: union batch k is batch k // 2 of cache k % 2, so a 2-batch step reads
+    seed 1's batch 0 and seed 2's batch 0; an epoch is 2 x the shorter cache (2 batches)."""
+    config = TrainConfig(
+        people_per_batch=1, frames=2, landmark_warmup_steps=4, stage1_steps=0, stage2_steps=0, track_width=0.25,
+        model_width=0.25, data=str(cache), extra_data=[str(cache_seed2)], warmup_batches_per_step=2, flip_probability=0.0,
+    )
+    trainer = Trainer(config, tmp_path / "run")
+    assert len(trainer.warmup_data) == 4
+    assert trainer.warmup_indices() == [0, 1]
+    seed2 = SyntheticData(face_model, face_region_model, seed=2, image_size=128, frames=2).batch(0, 1)
+    joined = trainer.read_batch()
+    assert torch.equal(joined.images[:2], trainer.data.batch(0, 1).images)
+    assert (joined.images[2:] - seed2.images).abs().max() <= 1 / 255 + 1e-6
+    assert torch.allclose(joined.weights[2:], seed2.weights)
+    assert not torch.equal(joined.weights[:2], joined.weights[2:])
+    values = trainer.train_step()
+    assert all(math.isfinite(v) for v in values.values())
+    trainer.step = 2  # the next pass starts again with both caches' first batches
+    assert trainer.warmup_indices() == [0, 1]
+
+
+def test_extra_caches_that_would_repeat_or_leak_people_are_refused(cache, cache_seed2, tmp_path):
+    import json
+    import shutil
+
+    from likeness_train.dataset import CacheUnion
+    from likeness_train.evaluate import HELD_OUT_SEED
+    from likeness_train.train import config_from_args
+
+    base = dict(people_per_batch=1, frames=2, landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0, track_width=0.25, model_width=0.25, data=str(cache))
+    with pytest.raises(ValueError, match="training's own"):
+        Trainer(TrainConfig(**base, extra_data=[str(cache)]), tmp_path / "a")
+    held = tmp_path / "held"
+    shutil.copytree(cache_seed2, held)
+    manifest = json.loads((held / "manifest.json").read_text())
+    (held / "manifest.json").write_text(json.dumps({**manifest, "seed": HELD_OUT_SEED}))
+    with pytest.raises(ValueError, match="held-out evaluation"):
+        Trainer(TrainConfig(**base, extra_data=[str(held)]), tmp_path / "b")
+    with pytest.raises(ValueError, match="needs data"):
+        Trainer(TrainConfig(**{**base, "data": None}, extra_data=[str(cache_seed2)]), tmp_path / "c")
+    with pytest.raises(SystemExit):
+        config_from_args(["--out", str(tmp_path / "d"), "--extra-data", str(cache_seed2)])
+    other = tmp_path / "other"
+    write_cache(other, CacheSpec(**{**SPEC, "seed": 3, "batches": 1, "frames": 4}), workers=1)
+    with pytest.raises(ValueError, match="cannot be read as one"):
+        CacheUnion([CachedData(cache), CachedData(other)])
+    with pytest.raises(ValueError, match="same seed"):
+        CacheUnion([CachedData(cache), CachedData(cache)])

@@ -259,3 +259,39 @@ def test_resume_refuses_a_checkpoint_of_another_schedule(tmp_path):
     with pytest.raises(SystemExit, match="landmark_warmup_steps"):
         other.resume()
     assert Trainer(_config(), tmp_path / "r").resume()
+
+
+def test_bf16_precision_matches_float32_and_trains(tmp_path):
+    """bf16 autocast changes rounding only: from the same initial weights TrackNet's and
+    ModelNet's outputs agree with float32 to bfloat16's precision (8 significant bits, some
+    20 layers deep), every output leaves as float32, and both stages train with finite terms."""
+    config = dict(landmark_warmup_steps=1, stage1_steps=1, stage2_steps=0, warmup_supervision=1.0)
+    fp32 = Trainer(_config(**config), tmp_path / "fp32")
+    bf16 = Trainer(_config(**config, precision="bf16"), tmp_path / "bf16")
+    batch = bf16.read_batch()
+    for trainer in (fp32, bf16):
+        trainer.track.eval()
+        trainer.modelnet.eval()
+    with torch.no_grad():
+        (p32, c32), (p16, c16) = fp32.predict(batch), bf16.predict(batch)
+    assert not torch.equal(p32.w, p16.w), "bf16 ran in float32"
+    for name in ("w", "euler", "translation", "gamma"):
+        a, b = getattr(p32, name), getattr(p16, name)
+        assert b.dtype == torch.float32
+        scale = float(a.abs().max()) + 1e-3
+        assert float((a - b).abs().max()) < 0.03 * scale, name
+    for name in ("dS0", "dS", "dR0", "dR"):
+        a, b = getattr(c32, name), getattr(c16, name)
+        assert b.dtype == torch.float32
+        assert float((a - b).abs().max()) < 0.03 * (float(a.abs().max()) + 1e-6), name
+    before = {k: v.clone() for k, v in bf16.track.state_dict().items()}
+    bf16.run(log_every=1)
+    assert bf16.step == 2 and bf16.stage == 1
+    assert any(not torch.equal(v, before[k]) for k, v in bf16.track.state_dict().items())
+    for line in (tmp_path / "bf16" / "log.jsonl").read_text().splitlines():
+        assert all(math.isfinite(v) for v in json.loads(line).values() if isinstance(v, float))
+
+
+def test_an_unknown_precision_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="precision must be one of"):
+        Trainer(_config(precision="fp16"), tmp_path / "x")
