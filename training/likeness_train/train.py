@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import pickle
 import shutil
 import time
 import contextlib
@@ -47,6 +48,8 @@ RESUME_KEYS = (
     "input_size", "track_width", "model_width", "track_pool", "track_w_head", "track_w_hidden", "people_per_batch", "frames",
     "landmark_warmup_steps", "warmup_batches_per_step", "seed",
 )
+# What fixes TrackNet's shape: a checkpoint's TrackNet loads only into one built the same.
+TRACK_SHAPE_KEYS = ("input_size", "track_width", "track_pool", "track_w_head", "track_w_hidden")
 # How the supervised w term compares w with the truth (TrainConfig.w_loss says why).
 W_LOSSES = ("sq", "l1", "bce_l1")
 # The networks' arithmetic (TrainConfig.precision says why).
@@ -162,6 +165,10 @@ class TrainConfig:
     # batches read the whole 4,000-batch cache once, and after 1.7 such epochs the jawOpen
     # correlation was 0.77 on seen people against 0.60 on held-out ones (issue 31).
     extra_data: list[str] = field(default_factory=list)
+    # A checkpoint whose TrackNet (weights and BatchNorm statistics) this run starts from,
+    # with a fresh optimiser and schedule: a longer warm-up continues a finished one instead
+    # of repeating its steps. A resumed run keeps its own weights.
+    init_track_from: str | None = None
     # "bf16": the networks' forward and backward passes run under bfloat16 autocast
     # (weights, optimiser, BatchNorm statistics, losses and the renderer stay float32).
     # `python -m likeness_train.bench_step` measures the speed; on this project's machine
@@ -199,6 +206,8 @@ class Trainer:
             w_grad_scale=config.track_w_grad_scale, pool=config.track_pool, input_size=config.input_size,
             w_head=config.track_w_head, w_hidden=config.track_w_hidden,
         )
+        if config.init_track_from:
+            self.init_track(Path(config.init_track_from))
         self.mirror = mirror_channels(self.model.expression_names)
         # Set by `run` on the steps it logs: the step then measures each term's gradient at
         # TrackNet's trunk (`trunk_gradients`).
@@ -217,6 +226,23 @@ class Trainer:
         self.optimizer = self._optimizer()
         self.started = time.time()
         self.elapsed_before = 0.0
+
+    def init_track(self, path: Path) -> None:
+        """TrackNet's weights from another run's checkpoint (`init_track_from`); refused when
+        that TrackNet was built otherwise."""
+        if not path.is_file():
+            raise FileNotFoundError(f"--init-track-from {path}: no such checkpoint")
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)
+        except (pickle.UnpicklingError, RuntimeError, EOFError, OSError) as e:
+            raise ValueError(f"--init-track-from {path}: cannot be read as a checkpoint ({e})") from e
+        if not isinstance(state, dict) or "track_net" not in state or "config" not in state:
+            raise ValueError(f"--init-track-from {path}: not a training checkpoint (no track_net and config)")
+        for key in TRACK_SHAPE_KEYS:
+            theirs = state["config"].get(key)
+            if theirs != getattr(self.cfg, key):
+                raise ValueError(f"--init-track-from {path}: its TrackNet has {key} = {theirs!r}, this run builds {getattr(self.cfg, key)!r}")
+        self.track.load_state_dict(state["track_net"])
 
     def extra_cache(self, directory: Path) -> CachedData:
         """One `--extra-data` cache, with on-the-fly rendering of its seed for what it lacks;
@@ -675,6 +701,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     parser.add_argument("--track-pool", choices=TRACK_POOLS, default=defaults.track_pool)
     parser.add_argument("--track-w-head", choices=TRACK_W_HEADS, default=defaults.track_w_head)
     parser.add_argument("--w-loss", choices=W_LOSSES, default=defaults.w_loss)
+    parser.add_argument("--init-track-from", default=None, metavar="CHECKPOINT", help="start TrackNet from this checkpoint's (TrainConfig.init_track_from)")
     parser.add_argument("--precision", choices=PRECISIONS, default=defaults.precision, help="the networks' arithmetic (TrainConfig.precision)")
     parser.add_argument("--sd-reduction", choices=("sum", "mean"), default=defaults.sd_reduction)
     parser.add_argument("--bg-reduction", choices=("sum", "shape_mean", "mean"), default=defaults.bg_reduction)

@@ -295,3 +295,29 @@ def test_bf16_precision_matches_float32_and_trains(tmp_path):
 def test_an_unknown_precision_is_refused(tmp_path):
     with pytest.raises(ValueError, match="precision must be one of"):
         Trainer(_config(precision="fp16"), tmp_path / "x")
+
+
+def test_init_track_from_starts_from_another_runs_tracknet(tmp_path):
+    """--init-track-from: TrackNet's weights and BatchNorm statistics come from the
+    checkpoint, ModelNet's and the optimiser do not; a TrackNet built otherwise is refused,
+    and a run resumed from its own checkpoint keeps its own weights."""
+    first = Trainer(_config(landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0), tmp_path / "first")
+    first.run(log_every=1)
+    source = torch.load(first.checkpoint_path, weights_only=False)["track_net"]
+    second = Trainer(_config(landmark_warmup_steps=2, stage1_steps=0, stage2_steps=0, seed=5, init_track_from=str(first.checkpoint_path)), tmp_path / "second")
+    assert all(torch.equal(v, source[k]) for k, v in second.track.state_dict().items())
+    fresh = Trainer(_config(seed=5), tmp_path / "fresh")
+    assert any(not torch.equal(v, source[k]) for k, v in fresh.track.state_dict().items())
+    assert second.step == 0 and not second.optimizer.state
+    second.run(log_every=1)
+    trained = {k: v.clone() for k, v in second.track.state_dict().items()}
+    resumed = Trainer(_config(landmark_warmup_steps=2, stage1_steps=0, stage2_steps=0, seed=5, init_track_from=str(first.checkpoint_path)), tmp_path / "second")
+    assert resumed.resume()
+    assert all(torch.equal(v, trained[k]) for k, v in resumed.track.state_dict().items())
+    with pytest.raises(ValueError, match="track_width"):
+        Trainer(_config(track_width=0.5, init_track_from=str(first.checkpoint_path)), tmp_path / "wide")
+    with pytest.raises(FileNotFoundError):
+        Trainer(_config(init_track_from=str(tmp_path / "none.pt")), tmp_path / "none")
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="cannot be read"):
+        Trainer(_config(init_track_from=str(tmp_path / "junk.pt")), tmp_path / "junk")
