@@ -40,7 +40,7 @@ import torch
 from . import metrics as M
 from .data import SyntheticData
 from .face import FaceModel
-from .networks import Corrections, TrainedNetworks, load_networks
+from .networks import Corrections, TrainedNetworks, calibration_summary, load_networks
 from .train import TrainConfig, ablate, normalise, render_prediction
 
 HELD_OUT_SEED = 1000
@@ -142,6 +142,8 @@ def main(argv: list[str] | None = None) -> None:
         "commit": ckpt.get("commit"),
         "training_elapsed_s": ckpt.get("elapsed_s"),
         "config": {k: v for k, v in nets.config.items() if k != "blendshape_names"},
+        # What calibrate.py fitted (None: TrackNet's raw w).
+        "w_calibration": calibration_summary(ckpt),
         **results,
         "elapsed_s": round(time.time() - t0, 1),
     }

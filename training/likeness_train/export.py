@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .networks import ModelNet, TrackNet, load_networks
+from .networks import CalibratedTrackNet, ModelNet, TrackNet, calibration_summary, load_networks
 
 # Input normalisation shared by training and inference: RGB in [0, 1], then (x - mean) / std.
 IMAGE_MEAN = (0.5, 0.5, 0.5)
@@ -133,7 +133,7 @@ def git_commit() -> str:
         return "unknown"
 
 
-def export_onnx(track: TrackNet, model: ModelNet, input_size: int, out_dir: Path) -> tuple[Path, Path]:
+def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet, input_size: int, out_dir: Path) -> tuple[Path, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     track_path, model_path = out_dir / "track_net.onnx", out_dir / "model_net.onnx"
     track.eval()
@@ -165,7 +165,7 @@ def export_onnx(track: TrackNet, model: ModelNet, input_size: int, out_dir: Path
     return track_path, model_path
 
 
-def parity(track: TrackNet, model: ModelNet, track_path: Path, model_path: Path, input_size: int, seed: int = 0) -> dict:
+def parity(track: TrackNet | CalibratedTrackNet, model: ModelNet, track_path: Path, model_path: Path, input_size: int, seed: int = 0) -> dict:
     """Max abs difference between PyTorch and ONNX Runtime on random inputs."""
     import onnxruntime as ort
 
@@ -242,7 +242,10 @@ def main(argv: list[str] | None = None) -> None:
         camera=camera_assumptions(),
         crop=crop,
         training_commit=ckpt.get("commit", git_commit()),
-        training={"step": ckpt.get("step"), "stage": ckpt.get("stage"), "elapsed_s": round(ckpt.get("elapsed_s", 0.0), 1), "config": {k: v for k, v in cfg.items() if k != "blendshape_names"}},
+        training={
+            "step": ckpt.get("step"), "stage": ckpt.get("stage"), "elapsed_s": round(ckpt.get("elapsed_s", 0.0), 1),
+            "config": {k: v for k, v in cfg.items() if k != "blendshape_names"}, "w_calibration": calibration_summary(ckpt),
+        },
         parity_max_abs_diff=diffs,
         latency_ms=timings,
         metrics=json.loads(args.metrics.read_text())["metrics"] if args.metrics else ckpt.get("metrics", {}),

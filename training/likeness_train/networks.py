@@ -21,6 +21,7 @@ Deviations, both configurable and recorded in the model manifest:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -295,6 +296,63 @@ class TrackNet(nn.Module):
         return TrackParams(torch.sigmoid(logits), euler, translation, gamma, w_logits=logits)
 
 
+# Where the pieces of a w calibration start (`WCalibration`): denser near 0, where the
+# zero-inflated truth puts most frames and where the dead zone that makes zeros exact lies.
+CALIBRATION_KNOTS = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+
+
+class WCalibration(nn.Module):
+    """A per-channel monotone piecewise-linear map of TrackNet's w, g_i(w) =
+    clamp(sum_k c_ik relu(w - t_k), 0, 1) with knots t_k (`CALIBRATION_KNOTS`, t_0 = 0, so
+    g_i(0) = 0) and non-decreasing partial sums of c_i (`calibrate.py` fits them).
+
+    Not in the paper, which reports no per-channel error. TrackNet's w term aims at each
+    channel's conditional mean (the cross-entropy); the metric, MAE, is minimised by the
+    conditional median, which is exactly 0 for a channel less likely on than off. g_i maps
+    one into the other, fitted on people TrackNet never trained on; it is monotone, so it
+    keeps the order of the frames (what correlation measures) up to ties in the dead zone.
+    The identity map (c_i0 = 1, the rest 0) changes nothing."""
+
+    def __init__(self, coefficients: torch.Tensor | None = None):
+        super().__init__()
+        knots = torch.tensor(CALIBRATION_KNOTS)
+        if coefficients is None:
+            coefficients = torch.zeros(NUM_BLENDSHAPES, len(knots))
+            coefficients[:, 0] = 1.0
+        if coefficients.shape != (NUM_BLENDSHAPES, len(knots)):
+            raise ValueError(f"w calibration coefficients must be [{NUM_BLENDSHAPES}, {len(knots)}], got {list(coefficients.shape)}")
+        if not torch.isfinite(coefficients).all():
+            raise ValueError("w calibration coefficients must be finite")
+        if (coefficients.cumsum(dim=1) < -1e-6).any():
+            raise ValueError("w calibration must be monotone: every partial sum of a channel's coefficients >= 0")
+        self.register_buffer("knots", knots)
+        self.register_buffer("coefficients", coefficients.float().clone())
+
+    def forward(self, w: torch.Tensor) -> torch.Tensor:
+        return (torch.relu(w.unsqueeze(-1) - self.knots) * self.coefficients).sum(-1).clamp(0.0, 1.0)
+
+
+class CalibratedTrackNet(nn.Module):
+    """TrackNet with its w passed through a `WCalibration` (the exported and evaluated
+    network of a calibrated checkpoint); pose and light unchanged."""
+
+    def __init__(self, track: TrackNet, calibration: WCalibration):
+        super().__init__()
+        self.track = track
+        self.calibration = calibration
+
+    def forward(self, images: torch.Tensor) -> TrackParams:
+        params = self.track(images)
+        return dataclasses.replace(params, w=self.calibration(params.w), w_logits=None)
+
+
+def calibration_summary(checkpoint: dict) -> dict | None:
+    """A calibrated checkpoint's `w_calibration` (calibrate.py) without its coefficients, for
+    results and manifests; None for TrackNet's raw w."""
+    c = checkpoint.get("w_calibration")
+    return None if c is None else {k: v for k, v in c.items() if k != "coefficients"}
+
+
 def parameter_count(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 
@@ -304,7 +362,7 @@ class TrainedNetworks:
     """The networks of a training checkpoint (`train.Trainer.save`), in eval mode."""
 
     config: dict
-    track: TrackNet
+    track: TrackNet | CalibratedTrackNet
     model: ModelNet
     mean_albedo: torch.Tensor | None  # R_0^t [3, 512, 512]
     checkpoint: dict
@@ -328,4 +386,6 @@ def load_networks(path) -> TrainedNetworks:
     model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
     track.load_state_dict(ckpt["track_net"])
     model.load_state_dict(ckpt["model_net"])
+    if ckpt.get("w_calibration") is not None:
+        track = CalibratedTrackNet(track, WCalibration(ckpt["w_calibration"]["coefficients"]))
     return TrainedNetworks(cfg, track.eval(), model.eval(), ckpt.get("mean_albedo"), ckpt)
