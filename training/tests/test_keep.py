@@ -1,0 +1,64 @@
+"""The kept checkpoint: smaller than the run's (no optimiser), the same networks in every
+reader (evaluation's load_networks, --init-track-from), bad input refused by name."""
+
+import pytest
+import torch
+
+from likeness_train.keep import keep
+from likeness_train.keep import main as keep_main
+from likeness_train.networks import load_networks
+from likeness_train.train import TrainConfig, Trainer
+
+
+def _config(**overrides):
+    base = dict(people_per_batch=1, frames=2, landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0, track_width=0.25, model_width=0.25)
+    return TrainConfig(**{**base, **overrides})
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A run's checkpoint after one real warm-up step, so the optimiser has moments to drop
+    and TrackNet's weights differ from a fresh initialisation."""
+    out = tmp_path_factory.mktemp("run")
+    trainer = Trainer(_config(), out)
+    trainer.run()
+    return trainer.checkpoint_path
+
+
+def test_kept_checkpoint_has_the_same_networks_without_the_optimiser(trained, tmp_path):
+    out = tmp_path / "kept" / "net.pt"
+    keep_main(["--checkpoint", str(trained), "--out", str(out)])
+    original = torch.load(trained, map_location="cpu", weights_only=False)
+    kept = torch.load(out, map_location="cpu", weights_only=False)
+    assert "optimizer" in original and "optimizer" not in kept
+    assert out.stat().st_size < trained.stat().st_size
+    assert kept["step"] == original["step"] and kept["config"] == original["config"]
+
+    a, b = load_networks(trained), load_networks(out)
+    torch.manual_seed(0)
+    image = torch.rand(2, 3, 128, 128)
+    with torch.no_grad():
+        x, y = a.track(image), b.track(image)
+    for field in ("w", "euler", "translation", "gamma"):
+        assert torch.equal(getattr(x, field), getattr(y, field)), field
+
+    # --init-track-from reads it as it reads the run's own checkpoint.
+    fresh = Trainer(_config(init_track_from=str(out)), tmp_path / "next")
+    for name, value in original["track_net"].items():
+        assert torch.equal(fresh.track.state_dict()[name], value), name
+
+
+def test_keep_refuses_bad_input(trained, tmp_path):
+    with pytest.raises(SystemExit, match="no such checkpoint"):
+        keep_main(["--checkpoint", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "a.pt")])
+    with pytest.raises(SystemExit, match="is the checkpoint itself"):
+        keep_main(["--checkpoint", str(trained), "--out", str(trained)])
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="cannot be read"):
+        keep(garbage, tmp_path / "b.pt")
+    other = tmp_path / "other.pt"
+    torch.save({"config": {}}, other)
+    with pytest.raises(ValueError, match="no track_net, model_net"):
+        keep(other, tmp_path / "c.pt")
+    assert not (tmp_path / "b.pt").exists() and not (tmp_path / "c.pt").exists()
