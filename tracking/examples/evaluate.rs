@@ -6,14 +6,21 @@
 //! landmarks are from OpenSeeFace's with and without refinement.
 //!
 //! `cargo run --release -p tracking --example evaluate [-- --backend tract]
-//! [--weight-prior X] [--rotation-prior X] [--translation-prior X] [--smooth SPEC]`
+//! [--weight-prior X] [--weight-sparsity X] [--rotation-prior X] [--translation-prior X]
+//! [--smooth SPEC] [--tune DIR [--sparsity-grid A,B,...] [--prior-grid A,B,...]]`
 //! (the priors and smoothing default to the tracker's defaults).
+//!
+//! `--tune DIR` first compares refinement with each weight prior and sparsity of the grids on the
+//! clips in DIR (a seed of their own, `python -m likeness_train.clips --seed 9002`; the
+//! held-out clips' seed is refused), takes the one with the lowest expression MAE there,
+//! and only then evaluates it on the held-out clips, printing whether refinement kept the
+//! held-out MAE at or below TrackNet's.
 
 use std::sync::Arc;
 
 use face::{FaceModel, Template};
 use tracking::backend::BackendChoice;
-use tracking::evaluate::{Clip, default_clips_dir, evaluate, real_crop_agreement};
+use tracking::evaluate::{Clip, default_clips_dir, evaluate, real_crop_agreement, tune_refinement};
 use tracking::pipeline::TrackerConfig;
 
 fn main() {
@@ -45,6 +52,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     if let Some(v) = value("--weight-prior")? {
         refine.weight_prior = v;
     }
+    if let Some(v) = value("--weight-sparsity")? {
+        refine.weight_sparsity = v;
+    }
     if let Some(v) = value("--rotation-prior")? {
         refine.rotation_prior = v;
     }
@@ -60,13 +70,50 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         Some(spec) => spec.parse()?,
         None => tracking::smooth::SmoothingConfig::default(),
     };
-    let config = TrackerConfig {
+    let mut config = TrackerConfig {
         backend,
-        refine: Some(refine),
+        refine: Some(refine.clone()),
         smoothing,
         ..TrackerConfig::default()
     };
     let clips = Clip::load_all(&default_clips_dir())?;
+    let text = |name: &str| {
+        args.iter()
+            .position(|a| a == name)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
+    if let Some(dir) = text("--tune") {
+        let tuning_clips = Clip::load_all(std::path::Path::new(&dir))?;
+        tracking::evaluate::check_tuning_clips(&tuning_clips, &clips)?;
+        let grid = |name: &str, default: String| -> Result<Vec<f32>, String> {
+            text(name)
+                .unwrap_or(default)
+                .split(',')
+                .map(|v| {
+                    v.trim()
+                        .parse::<f32>()
+                        .map_err(|e| format!("{name}: {v:?}: {e}"))
+                })
+                .collect()
+        };
+        let priors = grid("--prior-grid", refine.weight_prior.to_string())?;
+        let sparsities = grid("--sparsity-grid", "0,0.1,0.2,0.4,0.8,1.6,3.2".into())?;
+        // Of candidates with equal errors the first listed is chosen: the grids go up.
+        let candidates: Vec<_> = priors
+            .iter()
+            .flat_map(|&p| sparsities.iter().map(move |&s| (p, s)))
+            .map(|(p, s)| tracking::refine::RefineConfig {
+                weight_prior: p,
+                weight_sparsity: s,
+                ..refine.clone()
+            })
+            .collect();
+        let tuning = tune_refinement(face.clone(), &tuning_clips, &config, &candidates)?;
+        println!("## Weight sparsity chosen on the tuning clips ({dir})\n");
+        println!("{}", tuning.table());
+        config.refine = Some(tuning.rows[tuning.chosen].0.clone());
+    }
     let evaluation = evaluate(
         face.clone(),
         &clips,
@@ -78,6 +125,20 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         default_clips_dir().display()
     );
     println!("{}", evaluation.table());
+    if let [(_, tracknet), (_, refined), ..] = evaluation.rows.as_slice() {
+        println!(
+            "Refinement (weight prior {}, sparsity {}) {} the held-out expression MAE: {:.4} -> {:.4}\n",
+            config.refine.as_ref().map_or(0.0, |r| r.weight_prior),
+            config.refine.as_ref().map_or(0.0, |r| r.weight_sparsity),
+            if refined.expression_mae <= tracknet.expression_mae {
+                "keeps or lowers"
+            } else {
+                "RAISES"
+            },
+            tracknet.expression_mae,
+            refined.expression_mae
+        );
+    }
     for (row, report) in evaluation.rows.iter().zip(&evaluation.reports).take(2) {
         println!("### Per channel: {}\n", row.0);
         println!("{}", report.table());

@@ -13,6 +13,7 @@ use crate::error::{Result, TrackingError, io_error};
 use crate::networks::ModelNet;
 use crate::pipeline::{FrameOutput, Tracker, TrackerConfig};
 use crate::record::FrameRecord;
+use crate::refine::RefineConfig;
 use crate::smooth::SmoothingConfig;
 use crate::source::{FrameSource, ImageFiles, Next, natural_cmp};
 
@@ -31,6 +32,9 @@ pub struct TruthFrame {
 /// A clip's truth file.
 #[derive(Clone, Debug, Deserialize)]
 pub struct ClipTruth {
+    /// The seed the clip was rendered with (absent in clips from before it was written).
+    #[serde(default)]
+    pub seed: Option<u64>,
     pub width: u32,
     pub height: u32,
     pub focal_px: f32,
@@ -431,6 +435,160 @@ impl ExpressionReport {
     }
 }
 
+/// One clip tracked by TrackNet alone (no refinement, no smoothing, the clip's camera):
+/// what every refined variant starts from, so TrackNet runs once per clip.
+struct TrackedClip {
+    tracker: Tracker,
+    outputs: Vec<FrameOutput>,
+    /// `config`'s refinement settings (the default when it has none).
+    refine_config: RefineConfig,
+}
+
+fn track_clip(face: Arc<FaceModel>, clip: &Clip, config: &TrackerConfig) -> Result<TrackedClip> {
+    let mut cfg = config.clone();
+    cfg.fov_deg = Some(clip.fov_deg());
+    cfg.smoothing = SmoothingConfig::off();
+    let refine_config = cfg.refine.clone().unwrap_or_default();
+    cfg.refine = None;
+    let mut tracker = Tracker::new(face, cfg, true)?;
+    let mut outputs: Vec<FrameOutput> = Vec::new();
+    let mut source = clip.source();
+    loop {
+        match source.next_frame()? {
+            Next::Frame(f) => outputs.push(tracker.process(&f)),
+            Next::Skipped(s) => return Err(s.error),
+            Next::End => break,
+        }
+    }
+    Ok(TrackedClip {
+        tracker,
+        outputs,
+        refine_config,
+    })
+}
+
+/// The refinement settings compared by [`tune_refinement`] and what each gave.
+#[derive(Clone, Debug, Default)]
+pub struct Tuning {
+    /// TrackNet alone on the tuning clips: the row every candidate must beat.
+    pub tracknet: Metrics,
+    /// Each candidate and its metrics with refinement on the template, in the given order.
+    pub rows: Vec<(RefineConfig, Metrics)>,
+    /// Index into `rows` of the candidate with the lowest expression MAE over all 53
+    /// channels (the first of equals, so list the candidates from the weakest prior up).
+    pub chosen: usize,
+    pub clips: usize,
+}
+
+/// Refinement on the template with each of `candidates` over `clips`, TrackNet run once
+/// per clip. Meant for clips of a seed that neither training nor the held-out evaluation
+/// uses (`likeness_train.clips --seed 9002`): settings chosen here and then reported on
+/// the held-out clips (seed 9001) are not tuned on what they are reported on.
+pub fn tune_refinement(
+    face: Arc<FaceModel>,
+    clips: &[Clip],
+    config: &TrackerConfig,
+    candidates: &[RefineConfig],
+) -> Result<Tuning> {
+    if candidates.is_empty() {
+        return Err(TrackingError::InvalidInput(
+            "no refinement settings to compare".into(),
+        ));
+    }
+    for c in candidates {
+        c.validate()?;
+    }
+    let mut tracknet = Accumulator::default();
+    let mut acc: Vec<Accumulator> = candidates.iter().map(|_| Accumulator::default()).collect();
+    for clip in clips {
+        let TrackedClip {
+            mut tracker,
+            outputs,
+            ..
+        } = track_clip(face.clone(), clip, config)?;
+        tracknet.new_clip();
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            tracknet.add(&o.record, t);
+        }
+        let (w, h) = (clip.truth.width, clip.truth.height);
+        for (candidate, a) in candidates.iter().zip(&mut acc) {
+            a.new_clip();
+            tracker.set_refine(Some(candidate.clone()));
+            tracker.reset();
+            for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+                a.add(&tracker.retrack(o, w, h), t);
+            }
+        }
+    }
+    let visible = visible_channels(&face.template);
+    let rows: Vec<(RefineConfig, Metrics)> = candidates
+        .iter()
+        .cloned()
+        .zip(acc.iter().map(|a| a.finish(&visible).0))
+        .collect();
+    let chosen = rows.iter().enumerate().fold(0, |best, (i, (_, m))| {
+        if m.expression_mae < rows[best].1.expression_mae {
+            i
+        } else {
+            best
+        }
+    });
+    Ok(Tuning {
+        tracknet: tracknet.finish(&visible).0,
+        rows,
+        chosen,
+        clips: clips.len(),
+    })
+}
+
+/// Refuses tuning clips that share a seed with the held-out clips (or name no seed, so
+/// that cannot be checked): settings chosen on the clips they are reported on would
+/// flatter themselves.
+pub fn check_tuning_clips(tuning: &[Clip], held_out: &[Clip]) -> Result<()> {
+    let held_out_seeds: Vec<u64> = held_out.iter().filter_map(|c| c.truth.seed).collect();
+    match tuning
+        .iter()
+        .find(|c| c.truth.seed.is_none_or(|s| held_out_seeds.contains(&s)))
+    {
+        Some(c) => Err(TrackingError::InvalidInput(format!(
+            "tuning clip {} is {}; render tuning clips with a seed of their own (python -m likeness_train.clips --seed 9002)",
+            c.dir.display(),
+            match c.truth.seed {
+                Some(s) => format!("of seed {s}, a held-out clips' seed"),
+                None => "of no recorded seed".to_string(),
+            }
+        ))),
+        None => Ok(()),
+    }
+}
+
+impl Tuning {
+    /// A Markdown table: TrackNet alone, then each candidate's weight prior and sparsity
+    /// with its errors, the chosen one marked.
+    pub fn table(&self) -> String {
+        let mut out = format!(
+            "{} clips, {} frames\n\n| refinement | expression MAE (all 53) | MAE (visible) | landmark NME (box) | chosen |\n|---|---|---|---|---|\n| none (TrackNet only) | {:.4} | {:.4} | {:.2} % | |\n",
+            self.clips,
+            self.tracknet.frames,
+            self.tracknet.expression_mae,
+            self.tracknet.expression_mae_visible,
+            100.0 * self.tracknet.landmark_nme
+        );
+        for (i, (c, m)) in self.rows.iter().enumerate() {
+            out.push_str(&format!(
+                "| weight prior {}, sparsity {} | {:.4} | {:.4} | {:.2} % | {} |\n",
+                c.weight_prior,
+                c.weight_sparsity,
+                m.expression_mae,
+                m.expression_mae_visible,
+                100.0 * m.landmark_nme,
+                if i == self.chosen { "yes" } else { "" }
+            ));
+        }
+        out
+    }
+}
+
 /// The variants compared, in table order.
 pub const VARIANTS: [&str; 4] = [
     "TrackNet only",
@@ -465,25 +623,14 @@ pub fn evaluate(
     let mut zero_n = 0usize;
     let mut backend = String::new();
     for clip in clips {
-        let mut cfg = config.clone();
-        cfg.fov_deg = Some(clip.fov_deg());
-        cfg.smoothing = SmoothingConfig::off();
-        let refine_config = cfg.refine.clone().unwrap_or_default();
-        cfg.refine = None;
-        let mut tracker = Tracker::new(face.clone(), cfg, true)?;
+        let TrackedClip {
+            mut tracker,
+            outputs,
+            refine_config,
+        } = track_clip(face.clone(), clip, config)?;
         backend = tracker.backend().to_string();
         for a in &mut acc {
             a.new_clip();
-        }
-        // Pass 1: TrackNet only, keeping everything for the other variants.
-        let mut outputs: Vec<FrameOutput> = Vec::new();
-        let mut source = clip.source();
-        loop {
-            match source.next_frame()? {
-                Next::Frame(f) => outputs.push(tracker.process(&f)),
-                Next::Skipped(s) => return Err(s.error),
-                Next::End => break,
-            }
         }
         for (o, t) in outputs.iter().zip(&clip.truth.frames) {
             acc[0].add(&o.record, t);
@@ -672,6 +819,59 @@ mod tests {
         assert!(r.channels[0].correlation > 0.9);
         assert_eq!(r.channels[2].correlation, 0.0);
         assert!(r.table().contains("(not visible)"));
+    }
+
+    fn clip_of_seed(seed: Option<u64>, dir: &str) -> Clip {
+        Clip {
+            dir: PathBuf::from(dir),
+            truth: ClipTruth {
+                seed,
+                width: 64,
+                height: 64,
+                focal_px: 64.0,
+                fps: 30.0,
+                frames: Vec::new(),
+            },
+            frames: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn tuning_clips_of_the_held_out_seed_or_of_none_are_refused() {
+        let held_out = [
+            clip_of_seed(Some(9001), "h0"),
+            clip_of_seed(Some(9001), "h1"),
+        ];
+        let own = [
+            clip_of_seed(Some(9002), "t0"),
+            clip_of_seed(Some(9002), "t1"),
+        ];
+        assert!(check_tuning_clips(&own, &held_out).is_ok());
+        let mixed = [
+            clip_of_seed(Some(9002), "t0"),
+            clip_of_seed(Some(9001), "t1"),
+        ];
+        let e = check_tuning_clips(&mixed, &held_out).expect_err("a held-out clip among them");
+        assert!(
+            e.to_string().contains("t1") && e.to_string().contains("9001"),
+            "{e}"
+        );
+        let unknown = [clip_of_seed(None, "old")];
+        let e = check_tuning_clips(&unknown, &held_out).expect_err("no seed to check");
+        assert!(e.to_string().contains("no recorded seed"), "{e}");
+    }
+
+    #[test]
+    fn tuning_without_candidates_is_an_error_not_a_choice() {
+        let template = face::template::Template::one_quad("test");
+        let e = tune_refinement(
+            Arc::new(FaceModel::new(template)),
+            &[],
+            &TrackerConfig::default(),
+            &[],
+        )
+        .expect_err("nothing to compare");
+        assert!(e.to_string().contains("no refinement settings"), "{e}");
     }
 
     #[test]
