@@ -32,22 +32,20 @@ fn main() {
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
-    let backend: BackendChoice = args
-        .iter()
-        .position(|a| a == "--backend")
-        .and_then(|i| args.get(i + 1))
-        .map_or(Ok(BackendChoice::Auto), |b| b.parse())?;
     let face = Arc::new(FaceModel::new(Template::load_default(None)?));
-    let value = |name: &str| -> Result<Option<f32>, Box<dyn std::error::Error>> {
-        match args
-            .iter()
+    let text = |name: &str| {
+        args.iter()
             .position(|a| a == name)
             .and_then(|i| args.get(i + 1))
-        {
-            Some(v) => Ok(Some(v.parse::<f32>().map_err(|e| format!("{name}: {e}"))?)),
-            None => Ok(None),
-        }
+            .cloned()
     };
+    let value = |name: &str| -> Result<Option<f32>, Box<dyn std::error::Error>> {
+        text(name)
+            .map(|v| v.parse::<f32>().map_err(|e| format!("{name}: {e}").into()))
+            .transpose()
+    };
+    let backend: BackendChoice =
+        text("--backend").map_or(Ok(BackendChoice::Auto), |b| b.parse())?;
     let mut refine = tracking::refine::RefineConfig::default();
     if let Some(v) = value("--weight-prior")? {
         refine.weight_prior = v;
@@ -62,11 +60,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         refine.translation_prior = v;
     }
     refine.validate()?;
-    let smoothing = match args
-        .iter()
-        .position(|a| a == "--smooth")
-        .and_then(|i| args.get(i + 1))
-    {
+    let smoothing = match text("--smooth") {
         Some(spec) => spec.parse()?,
         None => tracking::smooth::SmoothingConfig::default(),
     };
@@ -77,12 +71,6 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         ..TrackerConfig::default()
     };
     let clips = Clip::load_all(&default_clips_dir())?;
-    let text = |name: &str| {
-        args.iter()
-            .position(|a| a == name)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
     if let Some(dir) = text("--tune") {
         let tuning_clips = Clip::load_all(std::path::Path::new(&dir))?;
         tracking::evaluate::check_tuning_clips(&tuning_clips, &clips)?;
