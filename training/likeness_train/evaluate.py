@@ -25,6 +25,8 @@ Metrics are averaged over people (each person has the same number of frames, ver
 texels, so per-image means are unchanged; ratios are per-person ratios averaged).
 The `baseline` row uses the same TrackNet with ModelNet's corrections zeroed (the template
 with the trained R_0^t): what personalization brings. The output is deterministic.
+`--model-net-from DIR` takes ModelNet and R_0^t from an exported models directory (what
+ships when a warm-up's TrackNet is exported beside an earlier run's ModelNet).
 """
 
 from __future__ import annotations
@@ -128,11 +130,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=4)
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument(
+        "--model-net-from", type=Path, default=None, metavar="DIR",
+        help="ModelNet and R_0^t from an exported models directory (model_net.onnx, mean_albedo.safetensors) instead of the checkpoint's: a warm-up trains TrackNet alone",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.set_flush_denormal(True)  # see dataset._worker: ~20x faster synthetic people
     t0 = time.time()
-    nets = load_networks(args.checkpoint)
+    try:
+        nets = load_networks(args.checkpoint, model_net_from=args.model_net_from)
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(str(e)) from e
     results = evaluate(nets, args.people, args.frames, args.seed, log=lambda m: print(m, flush=True))
     ckpt = nets.checkpoint
     results = {
@@ -144,6 +153,8 @@ def main(argv: list[str] | None = None) -> None:
         "config": {k: v for k, v in nets.config.items() if k != "blendshape_names"},
         # What calibrate.py fitted (None: TrackNet's raw w).
         "w_calibration": calibration_summary(ckpt),
+        # Where ModelNet and R_0^t came from: the checkpoint, or an exported models directory.
+        "model_net_from": str(args.model_net_from) if args.model_net_from else "checkpoint",
         **results,
         "elapsed_s": round(time.time() - t0, 1),
     }

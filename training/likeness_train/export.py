@@ -7,6 +7,8 @@ results.json]` writes `track_net.onnx` ([B,3,H,W] -> w, euler, translation, gamm
 must add dR_0 and dR_i to this, not to the procedural R_0 it started from) and
 `manifest.json`. It checks ONNX Runtime against PyTorch and prints the batch-1 ONNX
 Runtime latency of each model with 1 and 2 threads (median of 30 runs after 5 warm-ups).
+`--model-net-from DIR` exports TrackNet alone and keeps DIR's ModelNet and R_0^t (a
+landmark warm-up trains TrackNet only); the manifest records where they came from.
 The manifest's `crop` (where inference puts the square crop around the landmarks,
 preprocess.py) is kept from the manifest it replaces or the committed one when calibrated
 on the same synthetic distribution, and measured again otherwise or with `--recalibrate-crop`.
@@ -133,11 +135,14 @@ def git_commit() -> str:
         return "unknown"
 
 
-def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet, input_size: int, out_dir: Path) -> tuple[Path, Path]:
+def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, input_size: int, out_dir: Path) -> tuple[Path, Path]:
+    """Writes track_net.onnx and, unless `model` is None (ModelNet kept as it is),
+    model_net.onnx; returns both paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     track_path, model_path = out_dir / "track_net.onnx", out_dir / "model_net.onnx"
     track.eval()
-    model.eval()
+    if model is not None:
+        model.eval()
     with warnings.catch_warnings():
         # The legacy exporter writes one self-contained opset-17 file (no .onnx.data beside
         # it) and warns that it is deprecated; see docs/training.md.
@@ -152,6 +157,8 @@ def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet, input_siz
             opset_version=17,
             dynamo=False,
         )
+        if model is None:
+            return track_path, model_path
         torch.onnx.export(
             _ModelWrapper(model),
             (torch.zeros(4, 3, input_size, input_size),),
@@ -165,8 +172,9 @@ def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet, input_siz
     return track_path, model_path
 
 
-def parity(track: TrackNet | CalibratedTrackNet, model: ModelNet, track_path: Path, model_path: Path, input_size: int, seed: int = 0) -> dict:
-    """Max abs difference between PyTorch and ONNX Runtime on random inputs."""
+def parity(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, track_path: Path, model_path: Path, input_size: int, seed: int = 0) -> dict:
+    """Max abs difference between PyTorch and ONNX Runtime on random inputs (TrackNet only
+    when `model` is None)."""
     import onnxruntime as ort
 
     g = torch.Generator().manual_seed(seed)
@@ -174,8 +182,10 @@ def parity(track: TrackNet | CalibratedTrackNet, model: ModelNet, track_path: Pa
     result = {}
     with torch.no_grad():
         ref_track = [t.numpy() for t in _TrackWrapper(track.eval())(images)]
-        ref_model = [t.numpy() for t in _ModelWrapper(model.eval())(images)]
+        ref_model = None if model is None else [t.numpy() for t in _ModelWrapper(model.eval())(images)]
     for name, path, ref in (("track_net", track_path, ref_track), ("model_net", model_path, ref_model)):
+        if ref is None:
+            continue
         session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
         got = session.run(None, {"images": images.numpy()})
         result[name] = float(max(np.abs(a - b).max() for a, b in zip(got, ref)))
@@ -218,41 +228,86 @@ def save_mean_albedo(mean_albedo: torch.Tensor, out_dir: Path) -> Path:
     return path
 
 
+def kept_model_net(source: Path, out: Path, input_size: int) -> dict:
+    """`--model-net-from SOURCE`: SOURCE's model_net.onnx and mean_albedo.safetensors go to
+    `out` unchanged (copied unless SOURCE is `out`); returns SOURCE's manifest, which says
+    how they were trained. Refuses a directory that is not an export for this input size."""
+    import shutil
+
+    manifest_path = source / "manifest.json"
+    names = ("model_net.onnx", "mean_albedo.safetensors")
+    missing = [str(source / n) for n in (*names, "manifest.json") if not (source / n).is_file()]
+    if missing:
+        raise SystemExit(f"--model-net-from {source}: not an exported models directory (missing {', '.join(missing)})")
+    try:
+        old = json.loads(manifest_path.read_text())
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"--model-net-from {source}: manifest.json is not JSON ({e})") from e
+    if old.get("input_size") != input_size:
+        raise SystemExit(f"--model-net-from {source}: its ModelNet reads {old.get('input_size')} px images, the checkpoint's TrackNet {input_size} px")
+    out.mkdir(parents=True, exist_ok=True)
+    if source.resolve() != out.resolve():
+        for name in names:
+            shutil.copyfile(source / name, out / name)
+    return old
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--checkpoint", type=Path, required=True)
     parser.add_argument("--out", type=Path, default=Path("assets/models"))
     parser.add_argument("--metrics", type=Path, default=None, help="results.json of `python -m likeness_train.evaluate` for the manifest's `metrics`")
     parser.add_argument("--recalibrate-crop", action="store_true", help="measure the crop framing again instead of keeping a manifest's (preprocess.py)")
+    parser.add_argument(
+        "--model-net-from", type=Path, default=None, metavar="DIR",
+        help="export TrackNet only and keep DIR's exported ModelNet and R_0^t (DIR may be --out): a warm-up checkpoint's are untrained",
+    )
     args = parser.parse_args(argv)
     nets = load_networks(args.checkpoint)
     cfg, ckpt, track, model = nets.config, nets.checkpoint, nets.track, nets.model
+    kept_from = kept_model_net(args.model_net_from, args.out, cfg["input_size"]) if args.model_net_from else None
+    if kept_from is not None:
+        model = None
+    elif nets.mean_albedo is None:
+        raise SystemExit(f"{args.checkpoint} has no trained mean albedo R_0^t; it is not a training checkpoint")
     track_path, model_path = export_onnx(track, model, cfg["input_size"], args.out)
     diffs = parity(track, model, track_path, model_path, cfg["input_size"])
-    if nets.mean_albedo is None:
-        raise SystemExit(f"{args.checkpoint} has no trained mean albedo R_0^t; it is not a training checkpoint")
-    albedo_path = save_mean_albedo(nets.mean_albedo, args.out)
+    if kept_from is not None:
+        albedo_path = args.out / "mean_albedo.safetensors"
+        diffs["model_net"] = kept_from.get("parity_max_abs_diff", {}).get("model_net")
+    else:
+        albedo_path = save_mean_albedo(nets.mean_albedo, args.out)
     timings = latency(track_path, model_path, cfg["input_size"], frames=cfg.get("frames", 4))
     crop = crop_framing([args.out / "manifest.json", REPOSITORY_MANIFEST], cfg["input_size"], args.recalibrate_crop)
+    training = {
+        "step": ckpt.get("step"), "stage": ckpt.get("stage"), "elapsed_s": round(ckpt.get("elapsed_s", 0.0), 1),
+        "config": {k: v for k, v in cfg.items() if k != "blendshape_names"}, "w_calibration": calibration_summary(ckpt),
+    }
+    if kept_from is not None:
+        # The kept ModelNet's own provenance (a chain of TrackNet-only exports keeps the first).
+        previous = kept_from.get("training", {})
+        training["model_net_from"] = previous.get("model_net_from") or {
+            "training_commit": kept_from.get("training_commit"), "step": previous.get("step"), "stage": previous.get("stage"),
+            "model_width": kept_from.get("model_width"),
+        }
     manifest = Manifest(
         input_size=cfg["input_size"],
         track_width=cfg["track_width"],
-        model_width=cfg["model_width"],
+        model_width=kept_from["model_width"] if kept_from is not None else cfg["model_width"],
         blendshape_names=list(cfg["blendshape_names"]),
         camera=camera_assumptions(),
         crop=crop,
         training_commit=ckpt.get("commit", git_commit()),
-        training={
-            "step": ckpt.get("step"), "stage": ckpt.get("stage"), "elapsed_s": round(ckpt.get("elapsed_s", 0.0), 1),
-            "config": {k: v for k, v in cfg.items() if k != "blendshape_names"}, "w_calibration": calibration_summary(ckpt),
-        },
+        training=training,
         parity_max_abs_diff=diffs,
         latency_ms=timings,
         metrics=json.loads(args.metrics.read_text())["metrics"] if args.metrics else ckpt.get("metrics", {}),
     )
     (args.out / "manifest.json").write_text(json.dumps(asdict(manifest), indent=2) + "\n")
-    for path in (track_path, model_path, albedo_path):
+    for path in (track_path,) if kept_from is not None else (track_path, model_path, albedo_path):
         print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    if kept_from is not None:
+        print(f"kept ModelNet and R_0^t from {args.model_net_from} (training commit {training['model_net_from']['training_commit']})")
     print(f"ONNX Runtime vs PyTorch max abs difference: {diffs}")
     print("ONNX Runtime latency at batch 1, median ms (ModelNet: one person's N frames):")
     print("| model | 1 thread | 2 threads |\n|---|---|---|")

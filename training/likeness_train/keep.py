@@ -2,7 +2,10 @@
 
 `python -m likeness_train.keep --checkpoint runs/NAME/warmup.pt --out checkpoints/NAME.pt`
 writes the checkpoint's config, step, TrackNet, ModelNet, mean albedo, metrics and any
-w calibration, and leaves out the optimiser's moments (twice TrackNet's size again).
+w calibration, and leaves out the optimiser's moments (twice TrackNet's size again). A
+landmark warm-up's checkpoint (stage 0) trains TrackNet alone: its ModelNet and R_0^t are
+still their initial values, so they are left out too (46 -> ~27 MB for the 13,000-step
+warm-up) and the readers build them afresh (`networks.load_networks`).
 
 Why: runs live in `training/runs/`, which git ignores, and the next session may start on a
 fresh machine: the 20,000-step warm-up of 2026-12-06 was lost that way. A kept checkpoint
@@ -21,9 +24,11 @@ from pathlib import Path
 import torch
 
 # What a kept checkpoint carries: everything the readers above use, nothing of the
-# optimiser. The first three must be present for the file to be a checkpoint at all.
-REQUIRED_KEYS = ("config", "track_net", "model_net")
-KEPT_KEYS = REQUIRED_KEYS + ("step", "stage", "mean_albedo", "metrics", "w_calibration", "commit", "elapsed_s")
+# optimiser. The first two must be present for the file to be a checkpoint at all; a
+# training checkpoint also has ModelNet (kept only once stage 1 has trained it).
+REQUIRED_KEYS = ("config", "track_net")
+KEPT_KEYS = REQUIRED_KEYS + ("model_net", "step", "stage", "mean_albedo", "metrics", "w_calibration", "commit", "elapsed_s")
+UNTRAINED_IN_WARMUP = ("model_net", "mean_albedo")
 
 
 def kept_state(state: dict) -> dict:
@@ -33,7 +38,8 @@ def kept_state(state: dict) -> dict:
     missing = [key for key in REQUIRED_KEYS if key not in state]
     if missing:
         raise ValueError(f"not a training checkpoint (no {', '.join(missing)})")
-    return {key: state[key] for key in KEPT_KEYS if key in state}
+    warmup = state.get("stage") == 0
+    return {key: state[key] for key in KEPT_KEYS if key in state and not (warmup and key in UNTRAINED_IN_WARMUP)}
 
 
 def keep(checkpoint: Path, out: Path) -> dict:

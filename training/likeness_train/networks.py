@@ -353,8 +353,48 @@ def calibration_summary(checkpoint: dict) -> dict | None:
     return None if c is None else {k: v for k, v in c.items() if k != "coefficients"}
 
 
+
 def parameter_count(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
+
+
+class ExportedModelNet:
+    """An exported `model_net.onnx` run by ONNX Runtime behind ModelNet's interface
+    ([P, N, 3, H, W] -> Corrections), with the R_0^t exported beside it.
+
+    Why: a landmark warm-up trains TrackNet alone, so its checkpoint's ModelNet and R_0^t
+    are untrained; shipping its TrackNet keeps the shipped ModelNet, whose training
+    checkpoint may be gone (only its export is in git). Evaluating that pair needs this."""
+
+    def __init__(self, models_dir):
+        from pathlib import Path
+
+        import onnxruntime as ort
+        from safetensors.torch import load_file
+
+        models_dir = Path(models_dir)
+        onnx_path, albedo_path = models_dir / "model_net.onnx", models_dir / "mean_albedo.safetensors"
+        for path in (onnx_path, albedo_path):
+            if not path.is_file():
+                raise FileNotFoundError(f"{path}: no such file (--model-net-from wants an exported models directory)")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = max(1, torch.get_num_threads())
+        try:
+            self.session = ort.InferenceSession(str(onnx_path), options, providers=["CPUExecutionProvider"])
+            tensors = load_file(str(albedo_path))
+        except Exception as e:  # ONNX Runtime and safetensors raise their own types
+            raise ValueError(f"{models_dir}: cannot load the exported ModelNet ({e})") from e
+        if "mean_albedo_face" not in tensors:
+            raise ValueError(f"{albedo_path}: no mean_albedo_face tensor")
+        self.mean_albedo = tensors["mean_albedo_face"].float()
+        self.directory = models_dir
+
+    def eval(self):
+        return self
+
+    def __call__(self, images: torch.Tensor) -> Corrections:
+        outputs = [self.session.run(None, {"images": person.numpy()}) for person in images.float()]
+        return Corrections(*(torch.cat([torch.from_numpy(o[i]) for o in outputs]) for i in range(4)))
 
 
 @dataclass
@@ -363,14 +403,16 @@ class TrainedNetworks:
 
     config: dict
     track: TrackNet | CalibratedTrackNet
-    model: ModelNet
+    model: ModelNet | ExportedModelNet
     mean_albedo: torch.Tensor | None  # R_0^t [3, 512, 512]
     checkpoint: dict
 
 
-def load_networks(path) -> TrainedNetworks:
+def load_networks(path, model_net_from=None) -> TrainedNetworks:
     """Rebuilds TrackNet and ModelNet from a checkpoint's config and weights (shared by the
-    export and the evaluation; the priors are buffers, so they come with the weights)."""
+    export and the evaluation; the priors are buffers, so they come with the weights).
+    `model_net_from`: an exported models directory whose ModelNet and R_0^t replace the
+    checkpoint's (`ExportedModelNet`)."""
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
     cfg = ckpt["config"]
     track = TrackNet(
@@ -385,7 +427,13 @@ def load_networks(path) -> TrainedNetworks:
     )
     model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
     track.load_state_dict(ckpt["track_net"])
-    model.load_state_dict(ckpt["model_net"])
+    # A kept warm-up checkpoint (keep.py) has no ModelNet: it was never trained, and a
+    # fresh one is what the warm-up had.
+    if "model_net" in ckpt:
+        model.load_state_dict(ckpt["model_net"])
     if ckpt.get("w_calibration") is not None:
         track = CalibratedTrackNet(track, WCalibration(ckpt["w_calibration"]["coefficients"]))
+    if model_net_from is not None:
+        exported = ExportedModelNet(model_net_from)
+        return TrainedNetworks(cfg, track.eval(), exported, exported.mean_albedo, ckpt)
     return TrainedNetworks(cfg, track.eval(), model.eval(), ckpt.get("mean_albedo"), ckpt)

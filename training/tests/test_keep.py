@@ -33,6 +33,9 @@ def test_kept_checkpoint_has_the_same_networks_without_the_optimiser(trained, tm
     assert "optimizer" in original and "optimizer" not in kept
     assert out.stat().st_size < trained.stat().st_size
     assert kept["step"] == original["step"] and kept["config"] == original["config"]
+    # A warm-up never trains ModelNet or R_0^t: they are left out and built afresh.
+    assert original["stage"] == 0 and "model_net" not in kept and "mean_albedo" not in kept
+    assert load_networks(out).mean_albedo is None
 
     a, b = load_networks(trained), load_networks(out)
     torch.manual_seed(0)
@@ -59,6 +62,21 @@ def test_keep_refuses_bad_input(trained, tmp_path):
         keep(garbage, tmp_path / "b.pt")
     other = tmp_path / "other.pt"
     torch.save({"config": {}}, other)
-    with pytest.raises(ValueError, match="no track_net, model_net"):
+    with pytest.raises(ValueError, match="no track_net"):
         keep(other, tmp_path / "c.pt")
     assert not (tmp_path / "b.pt").exists() and not (tmp_path / "c.pt").exists()
+
+
+def test_a_checkpoint_past_the_warm_up_keeps_model_net_and_the_albedo(tmp_path):
+    trainer = Trainer(_config(landmark_warmup_steps=0, stage1_steps=1), tmp_path / "run")
+    trainer.run()
+    original = torch.load(trainer.checkpoint_path, map_location="cpu", weights_only=False)
+    assert original["stage"] >= 1
+    kept = keep(trainer.checkpoint_path, tmp_path / "kept.pt")
+    assert "optimizer" not in kept
+    for name, value in original["model_net"].items():
+        assert torch.equal(kept["model_net"][name], value), name
+    assert torch.equal(kept["mean_albedo"], original["mean_albedo"])
+    nets = load_networks(tmp_path / "kept.pt")
+    for name, value in original["model_net"].items():
+        assert torch.equal(nets.model.state_dict()[name], value), name

@@ -181,9 +181,12 @@ def test_crop_for_landmarks_rejects_bad_landmarks():
 
 
 def test_preprocess_manifest_framing_reproduces_on_a_small_sample(face_model):
-    """The committed framing against 12 people x 4 frames of another seed: the medians of a
-    small sample scatter around the 2,000-frame ones by about IQR / sqrt(n) (the per-frame
-    interquartile ranges are ~0.13 for the scale and ~0.05 for the offset), so 0.06 and 0.03."""
+    """The committed framing against 12 people x 4 frames of another seed: the median of n
+    samples has a standard error of about 1.25 sigma / sqrt(n), sigma ~ IQR / 1.35. The
+    per-frame interquartile ranges of the 2,000 calibration frames are ~0.44 for the scale
+    (2.22-2.66) and ~0.16 for the offset (training/README.md), so at n = 48 the errors are
+    ~0.06 and ~0.02, and the tolerances three of them: 0.18 and 0.065. (Seed 5's sample
+    sits 0.06 above version 2's and version 3's 2,000-frame scale, one standard error.)"""
     manifest = json.loads(MANIFEST.read_text())
     framing = CropFraming.from_manifest(manifest)
     crop = manifest["crop"]
@@ -192,8 +195,8 @@ def test_preprocess_manifest_framing_reproduces_on_a_small_sample(face_model):
     boxes = training_landmark_boxes(face_model, seed=5, people=12, frames_per_person=4, image_size=manifest["input_size"])
     small, _ = framing_from_boxes(boxes, manifest["input_size"])
     print("manifest framing", framing, "small sample", small)
-    assert small.scale == pytest.approx(framing.scale, abs=0.06)
-    assert small.centre_offset == pytest.approx(framing.centre_offset, abs=0.03)
+    assert small.scale == pytest.approx(framing.scale, abs=0.18)
+    assert small.centre_offset == pytest.approx(framing.centre_offset, abs=0.065)
     # The framing maps a typical training face onto the whole image: the crop of the
     # median-like frame is within a few pixels of [0, 128]^2.
     rects = np.array([[b[0], b[1], b[2], b[3]] for b in boxes])

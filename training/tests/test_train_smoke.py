@@ -321,3 +321,30 @@ def test_init_track_from_starts_from_another_runs_tracknet(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="cannot be read"):
         Trainer(_config(init_track_from=str(tmp_path / "junk.pt")), tmp_path / "junk")
+
+
+def test_bf16_on_a_cpu_without_it_is_warned_about(tmp_path, monkeypatch, capsys):
+    """Emulated bfloat16 is ~10x slower than float32: the command line says so (and still
+    runs, since a resumed run may be on another machine)."""
+    import likeness_train.train as train
+
+    ran = []
+
+    class Stub:
+        def __init__(self, config, out):
+            self.config = config
+
+        def resume(self):
+            return False
+
+        def run(self):
+            ran.append(self.config.precision)
+
+    monkeypatch.setattr(train, "Trainer", Stub)
+    for has_bf16, warned in ((False, True), (True, False)):
+        monkeypatch.setattr(train, "cpu_has_bf16", lambda has=has_bf16: has)
+        train.main(["--out", str(tmp_path / "run"), "--precision", "bf16"])
+        assert ("bfloat16 is emulated" in capsys.readouterr().err) == warned
+    train.main(["--out", str(tmp_path / "run"), "--precision", "fp32"])
+    assert "emulated" not in capsys.readouterr().err
+    assert ran == ["bf16", "bf16", "fp32"]
