@@ -366,7 +366,8 @@ class ExportedModelNet:
     are untrained; shipping its TrackNet keeps the shipped ModelNet, whose training
     checkpoint may be gone (only its export is in git). Evaluating that pair needs this."""
 
-    def __init__(self, models_dir):
+    def __init__(self, models_dir, input_size: int | None = None):
+        import json
         from pathlib import Path
 
         import onnxruntime as ort
@@ -386,6 +387,16 @@ class ExportedModelNet:
             raise ValueError(f"{models_dir}: cannot load the exported ModelNet ({e})") from e
         if "mean_albedo_face" not in tensors:
             raise ValueError(f"{albedo_path}: no mean_albedo_face tensor")
+        # The exporter's manifest says which crops this ModelNet reads; a checkpoint of
+        # another input size would only fail inside ONNX Runtime, person by person.
+        manifest = models_dir / "manifest.json"
+        if input_size is not None and manifest.is_file():
+            try:
+                exported_size = json.loads(manifest.read_text()).get("input_size")
+            except json.JSONDecodeError as e:
+                raise ValueError(f"{manifest}: not JSON ({e})") from e
+            if exported_size != input_size:
+                raise ValueError(f"{models_dir}: its ModelNet reads {exported_size} px images, the checkpoint's TrackNet {input_size} px")
         self.mean_albedo = tensors["mean_albedo_face"].float()
         self.directory = models_dir
 
@@ -434,6 +445,6 @@ def load_networks(path, model_net_from=None) -> TrainedNetworks:
     if ckpt.get("w_calibration") is not None:
         track = CalibratedTrackNet(track, WCalibration(ckpt["w_calibration"]["coefficients"]))
     if model_net_from is not None:
-        exported = ExportedModelNet(model_net_from)
+        exported = ExportedModelNet(model_net_from, input_size=cfg["input_size"])
         return TrainedNetworks(cfg, track.eval(), exported, exported.mean_albedo, ckpt)
     return TrainedNetworks(cfg, track.eval(), model.eval(), ckpt.get("mean_albedo"), ckpt)

@@ -77,5 +77,9 @@ def test_a_tracknet_only_export_keeps_the_exported_model_net_and_evaluates_with_
     assert result["model_net_from"] == str(out)
     with pytest.raises(SystemExit, match="not an exported models directory"):
         export_main(["--checkpoint", str(second), "--out", str(tmp_path / "x"), "--model-net-from", str(tmp_path / "first")])
+    manifest["input_size"] = 224
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(SystemExit, match="reads 224 px images"):
+        evaluate_main(["--checkpoint", str(second), "--out", str(result_path), "--model-net-from", str(out)])
     with pytest.raises(SystemExit, match="no such file"):
         evaluate_main(["--checkpoint", str(second), "--out", str(result_path), "--model-net-from", str(tmp_path / "first")])
