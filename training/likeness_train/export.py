@@ -7,6 +7,8 @@ results.json]` writes `track_net.onnx` ([B,3,H,W] -> w, euler, translation, gamm
 must add dR_0 and dR_i to this, not to the procedural R_0 it started from) and
 `manifest.json`. It checks ONNX Runtime against PyTorch and prints the batch-1 ONNX
 Runtime latency of each model with 1 and 2 threads (median of 30 runs after 5 warm-ups).
+Weights are stored as float16 (the arithmetic stays float32; `store_weights_fp16`) unless
+`--fp32-weights`; the manifest records what the rounding changed.
 `--model-net-from DIR` exports TrackNet alone and keeps DIR's ModelNet and R_0^t (a
 landmark warm-up trains TrackNet only); the manifest records where they came from.
 The manifest's `crop` (where inference puts the square crop around the landmarks,
@@ -60,6 +62,9 @@ class Manifest:
     training_commit: str = ""
     training: dict = field(default_factory=dict)
     parity_max_abs_diff: dict = field(default_factory=dict)
+    # Per network and output, what storing the weights as float16 changed (None: float32
+    # weights, `--fp32-weights`); parity_max_abs_diff is measured before, on float32 files.
+    fp16_storage_max_abs_diff: dict | None = None
     latency_ms: dict = field(default_factory=dict)
     metrics: dict = field(default_factory=dict)
 
@@ -172,6 +177,85 @@ def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, in
     return track_path, model_path
 
 
+# Initializers at least this large are stored as float16 (`store_weights_fp16`); the small
+# ones (biases, the w calibration's coefficients) stay float32, they weigh nothing.
+FP16_MIN_ELEMENTS = 1024
+
+
+def store_weights_fp16(path: Path, min_elements: int = FP16_MIN_ELEMENTS) -> int:
+    """Rewrites the ONNX file at `path` with every float32 initializer of at least
+    `min_elements` values stored as float16 and a Cast back to float32 in front of its
+    users: the file is half the size (what a browser downloads) and the arithmetic stays
+    float32, since ONNX Runtime and tract fold the Casts of constants when they load the
+    model. Returns how many initializers were converted.
+
+    Written here rather than with onnxconverter-common's `convert_float_to_float16`: that
+    converts the computation to float16 too (slow on CPUs without float16 arithmetic, and
+    tract's float16 kernels differ from ONNX Runtime's), and it is not otherwise a
+    dependency."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    model = onnx.load(str(path))
+    graph = model.graph
+    casts, kept = [], []
+    for init in graph.initializer:
+        values = numpy_helper.to_array(init)
+        if init.data_type != TensorProto.FLOAT or values.size < min_elements:
+            kept.append(init)
+            continue
+        stored = f"{init.name}__fp16"
+        kept.append(numpy_helper.from_array(values.astype(np.float16), stored))
+        casts.append(helper.make_node("Cast", [stored], [init.name], name=f"{init.name}__to_fp32", to=TensorProto.FLOAT))
+    if not casts:
+        return 0
+    del graph.initializer[:]
+    graph.initializer.extend(kept)
+    nodes = casts + list(graph.node)
+    del graph.node[:]
+    graph.node.extend(nodes)
+    onnx.checker.check_model(model)
+    tmp = path.with_suffix(".fp16.tmp")
+    onnx.save(model, str(tmp))
+    tmp.replace(path)
+    return len(casts)
+
+
+def onnx_outputs_max_abs_diff(a: Path, b: Path, input_size: int, batch: int, seed: int = 0) -> dict[str, float]:
+    """Max abs difference of each output between two ONNX files of the same network (ONNX
+    Runtime, the same random images in [-1, 1])."""
+    import onnxruntime as ort
+
+    images = (np.random.default_rng(seed).random((batch, 3, input_size, input_size), dtype=np.float32) * 2 - 1).astype(np.float32)
+    sessions = [ort.InferenceSession(str(p), providers=["CPUExecutionProvider"]) for p in (a, b)]
+    names = [o.name for o in sessions[0].get_outputs()]
+    outputs = [s.run(names, {"images": images}) for s in sessions]
+    return {n: float(np.abs(x - y).max()) for n, x, y in zip(names, *outputs)}
+
+
+def to_fp16_storage(path: Path, input_size: int, batch: int) -> dict[str, float]:
+    """`store_weights_fp16` on an exported file, returning what the rounding of the stored
+    weights changed in each output (against the float32 file it replaces); refused when w
+    moves by more than `FP16_W_TOLERANCE`."""
+    import shutil
+
+    reference = path.with_suffix(".fp32.tmp")
+    shutil.copyfile(path, reference)
+    try:
+        store_weights_fp16(path)
+        diffs = onnx_outputs_max_abs_diff(reference, path, input_size, batch)
+    finally:
+        reference.unlink(missing_ok=True)
+    if diffs.get("w", 0.0) > FP16_W_TOLERANCE:
+        raise SystemExit(f"{path}: float16 weights move w by {diffs['w']:.4f} (> {FP16_W_TOLERANCE}); export with --fp32-weights")
+    return diffs
+
+
+# How far float16 weights may move a blendshape weight (of [0, 1]): a tenth of the smallest
+# MAE difference any table in training/README.md reports.
+FP16_W_TOLERANCE = 2e-3
+
+
 def parity(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, track_path: Path, model_path: Path, input_size: int, seed: int = 0) -> dict:
     """Max abs difference between PyTorch and ONNX Runtime on random inputs (TrackNet only
     when `model` is None)."""
@@ -262,6 +346,10 @@ def main(argv: list[str] | None = None) -> None:
         "--model-net-from", type=Path, default=None, metavar="DIR",
         help="export TrackNet only and keep DIR's exported ModelNet and R_0^t (DIR may be --out): a warm-up checkpoint's are untrained",
     )
+    parser.add_argument(
+        "--fp32-weights", action="store_true",
+        help="store the weights as float32 (default: float16 storage, float32 arithmetic; half the download)",
+    )
     args = parser.parse_args(argv)
     nets = load_networks(args.checkpoint)
     cfg, ckpt, track, model = nets.config, nets.checkpoint, nets.track, nets.model
@@ -277,6 +365,13 @@ def main(argv: list[str] | None = None) -> None:
         diffs["model_net"] = kept_from.get("parity_max_abs_diff", {}).get("model_net")
     else:
         albedo_path = save_mean_albedo(nets.mean_albedo, args.out)
+    rounding: dict = {}
+    if not args.fp32_weights:
+        rounding["track_net"] = to_fp16_storage(track_path, cfg["input_size"], batch=3)
+        if kept_from is None:
+            rounding["model_net"] = to_fp16_storage(model_path, cfg["input_size"], batch=cfg.get("frames", 4))
+        else:
+            rounding["model_net"] = (kept_from.get("fp16_storage_max_abs_diff") or {}).get("model_net")
     timings = latency(track_path, model_path, cfg["input_size"], frames=cfg.get("frames", 4))
     crop = crop_framing([args.out / "manifest.json", REPOSITORY_MANIFEST], cfg["input_size"], args.recalibrate_crop)
     training = {
@@ -300,6 +395,7 @@ def main(argv: list[str] | None = None) -> None:
         training_commit=ckpt.get("commit", git_commit()),
         training=training,
         parity_max_abs_diff=diffs,
+        fp16_storage_max_abs_diff=rounding or None,
         latency_ms=timings,
         metrics=json.loads(args.metrics.read_text())["metrics"] if args.metrics else ckpt.get("metrics", {}),
     )
@@ -309,6 +405,8 @@ def main(argv: list[str] | None = None) -> None:
     if kept_from is not None:
         print(f"kept ModelNet and R_0^t from {args.model_net_from} (training commit {training['model_net_from']['training_commit']})")
     print(f"ONNX Runtime vs PyTorch max abs difference: {diffs}")
+    if rounding:
+        print(f"float16 weights vs float32, max abs difference per output: {rounding}")
     print("ONNX Runtime latency at batch 1, median ms (ModelNet: one person's N frames):")
     print("| model | 1 thread | 2 threads |\n|---|---|---|")
     for name in ("track_net", "model_net"):

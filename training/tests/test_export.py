@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from likeness_train.export import export_onnx, parity
+from likeness_train.export import FP16_MIN_ELEMENTS, export_onnx, onnx_outputs_max_abs_diff, parity, store_weights_fp16
 from likeness_train.networks import ModelNet, TrackNet
 
 
@@ -47,7 +47,8 @@ def test_a_tracknet_only_export_keeps_the_exported_model_net_and_evaluates_with_
 
     first, second = checkpoint("first", 1), checkpoint("second", 2)
     shipped = tmp_path / "shipped"
-    export_main(["--checkpoint", str(first), "--out", str(shipped)])
+    # float32 weights, so that the exported ModelNet can be held to PyTorch's at 1e-4 below
+    export_main(["--checkpoint", str(first), "--out", str(shipped), "--fp32-weights"])
     before = {n: (shipped / n).read_bytes() for n in ("model_net.onnx", "mean_albedo.safetensors", "track_net.onnx")}
     first_manifest = json.loads((shipped / "manifest.json").read_text())
     out = tmp_path / "models"
@@ -59,6 +60,9 @@ def test_a_tracknet_only_export_keeps_the_exported_model_net_and_evaluates_with_
     assert manifest["training"]["model_net_from"]["training_commit"] == first_manifest["training_commit"]
     assert manifest["parity_max_abs_diff"]["model_net"] == first_manifest["parity_max_abs_diff"]["model_net"]
     assert manifest["parity_max_abs_diff"]["track_net"] < 1e-4
+    # The new TrackNet is stored as float16 (the default); the kept float32 ModelNet is not.
+    assert manifest["fp16_storage_max_abs_diff"]["model_net"] is None
+    assert first_manifest["fp16_storage_max_abs_diff"] is None
 
     # The exported ModelNet behind ModelNet's interface computes what the PyTorch one did.
     nets = load_networks(second, model_net_from=out)
@@ -83,3 +87,56 @@ def test_a_tracknet_only_export_keeps_the_exported_model_net_and_evaluates_with_
         evaluate_main(["--checkpoint", str(second), "--out", str(result_path), "--model-net-from", str(out)])
     with pytest.raises(SystemExit, match="no such file"):
         evaluate_main(["--checkpoint", str(second), "--out", str(result_path), "--model-net-from", str(tmp_path / "first")])
+
+
+def test_float16_storage_halves_the_file_rounds_each_weight_once_and_keeps_the_outputs(tmp_path, monkeypatch):
+    """store_weights_fp16: every large float32 initializer becomes exactly its float16
+    rounding behind a Cast, small ones stay float32, the file shrinks to about half, and
+    ONNX Runtime's outputs move by about float16's relative precision (2^-11) times the
+    activations' size, far below the export's refusal threshold for w."""
+    import shutil
+
+    import numpy as np
+    import onnx
+    from onnx import TensorProto, numpy_helper
+
+    torch.manual_seed(3)
+    track = TrackNet(width=0.25, pool="flatten")
+    with torch.no_grad():
+        track.head.weight.normal_(0, 0.05)
+    path, _ = export_onnx(track, None, 128, tmp_path)
+    reference = tmp_path / "fp32.onnx"
+    shutil.copyfile(path, reference)
+    before = {i.name: numpy_helper.to_array(i) for i in onnx.load(str(reference)).graph.initializer}
+
+    converted = store_weights_fp16(path)
+    after = onnx.load(str(path))
+    large = [n for n, v in before.items() if v.dtype == np.float32 and v.size >= FP16_MIN_ELEMENTS]
+    assert converted == len(large) > 0
+    stored = {i.name: i for i in after.graph.initializer}
+    for name in large:
+        init = stored[f"{name}__fp16"]
+        assert init.data_type == TensorProto.FLOAT16
+        assert np.array_equal(numpy_helper.to_array(init), before[name].astype(np.float16))
+    for name, values in before.items():
+        if name not in large:
+            assert numpy_helper.to_array(stored[name]).dtype == values.dtype
+    casts = [n for n in after.graph.node if n.op_type == "Cast"]
+    assert {c.output[0] for c in casts} >= set(large)
+    assert path.stat().st_size < 0.55 * reference.stat().st_size
+
+    diffs = onnx_outputs_max_abs_diff(reference, path, 128, batch=3)
+    print("float16 storage, max abs difference per output:", diffs)
+    assert set(diffs) == {"w", "euler", "translation", "gamma"}
+    assert 0 < diffs["w"] < 2e-3
+    # A second pass finds nothing left to convert and leaves the file as it is.
+    size = path.stat().st_size
+    assert store_weights_fp16(path) == 0 and path.stat().st_size == size
+
+    # The export refuses float16 weights that would move w by more than its tolerance.
+    import likeness_train.export as export
+
+    export_onnx(track, None, 128, tmp_path)
+    monkeypatch.setattr(export, "FP16_W_TOLERANCE", 0.0)
+    with pytest.raises(SystemExit, match="float16 weights move w by"):
+        export.to_fp16_storage(path, 128, batch=3)
