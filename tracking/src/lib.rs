@@ -2,9 +2,10 @@
 //!
 //! Owns embedded inference of the project's TrackNet and ModelNet (ONNX Runtime through
 //! `ort` natively, tract in pure Rust for wasm32 and as the fallback), the preprocessing
-//! the training code used, real-footage face detection and 66-point landmarks (OpenSeeFace
-//! models), test-time refinement, temporal smoothing, frame selection for personalization,
-//! footage sources and the per-frame tracking records.
+//! the training code used, real-footage face detection and landmarks (OpenSeeFace's 66
+//! points; MediaPipe's BlazeFace and 468-point Face Mesh), test-time refinement, temporal
+//! smoothing, frame selection for personalization, footage sources and the per-frame
+//! tracking records.
 //!
 //! It builds on `face` for the model (equations (2) and (3), camera, landmarks) and must not
 //! depend on a GPU, a UI or the retargeting crate: the studio and the CLI wire those.
@@ -20,6 +21,7 @@ pub mod preprocess;
 
 pub use params::FaceParams;
 pub mod evaluate;
+pub mod mediapipe;
 pub mod networks;
 pub mod openseeface;
 pub mod personalize;

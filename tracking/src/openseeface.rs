@@ -489,14 +489,20 @@ impl OpenSeeFace {
     }
 }
 
-fn display_name(path: &Path) -> String {
+pub(crate) fn display_name(path: &Path) -> String {
     path.file_name().map_or_else(
         || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     )
 }
 
-fn check_output(tensor: &Tensor, expected: &[usize], model: &str, output: &str) -> Result<()> {
+/// An output of the expected shape and finite, or an error naming the model and output.
+pub(crate) fn check_output(
+    tensor: &Tensor,
+    expected: &[usize],
+    model: &str,
+    output: &str,
+) -> Result<()> {
     if tensor.shape != expected || tensor.data.len() != expected.iter().product::<usize>() {
         return Err(TrackingError::BadOutput {
             model: model.to_owned(),

@@ -1,0 +1,582 @@
+//! Face detection (BlazeFace, short range) and 468 dense landmarks (Face Mesh) with
+//! MediaPipe's models, placed as MediaPipe's own face-mesh graph places them (issue 32).
+//!
+//! OpenSeeFace's 66 points give an eye 6 points and the lips 18, so blinks, squints,
+//! brows and lip shapes are barely constrained on real footage; Face Mesh's 468 points
+//! cover lids, lips and brows with contours of their own. `shared/models/README.md`
+//! describes the two ONNX files (converted from the `.tflite` files of the PyPI wheel
+//! `mediapipe==0.10.14`, Apache-2.0). What this module reproduces of MediaPipe's graphs
+//! (`face_detection_short_range_common`, `face_detection_front_detection_to_roi`,
+//! `face_landmark_landmarks_to_roi`), with the calculators' options written out below:
+//!
+//! - **Detection.** The whole frame letterboxed (centred, black borders) to 128 x 128 RGB
+//!   in [-1, 1]; 896 SSD anchors (strides 8 and 16, fixed size); each anchor regresses a
+//!   box (centre offset and size, in input pixels) and six keypoints (right eye, left eye,
+//!   nose tip, mouth centre, right and left ear tragion: the subject's right is the image
+//!   left); score = sigmoid(clip(logit, +-100)) >= 0.5; weighted non-maximum suppression
+//!   at an intersection over union of 0.3 (overlapping detections are averaged, weighted
+//!   by score, and keep the best score).
+//! - **Crop from a detection.** The detection's box, turned so the eye keypoints are level,
+//!   made square on its longer side and scaled by 1.5.
+//! - **Face Mesh.** That crop sampled to 192 x 192 RGB in [0, 1] (NHWC); the network returns
+//!   468 points (x, y in crop pixels, z relative at x's scale) and a face-presence logit.
+//! - **Crop from the previous frame's points** (following a face): the points' bounding
+//!   box, turned so points 33 and 263 (the outer eye corners) are level, square on the
+//!   longer side, scaled by 1.5. When the presence falls below 0.5 the face is lost and
+//!   the detector runs again.
+//!
+//! Coordinates: every point and box is in frame pixels of the image passed in, continuous,
+//! pixel (row i, column j) covering [j, j+1) x [i, i+1), as in [`crate::preprocess`].
+
+use std::path::{Path, PathBuf};
+
+use glam::{Vec2, Vec3};
+use image::RgbImage;
+
+use crate::backend::{BackendKind, InferenceBackend, Tensor, load_model};
+use crate::error::{Result, TrackingError};
+use crate::openseeface::{check_output, display_name, intersection_over_union};
+use crate::preprocess::Rect;
+
+/// The detector's file in the models folder (both engines run it as it is).
+pub const DETECTOR_FILE: &str = "face_detection_short_range.onnx";
+/// Face Mesh's file in the models folder.
+pub const MESH_FILE: &str = "face_landmark.onnx";
+/// Side of the detector's square input, in pixels.
+pub const DETECTOR_INPUT: usize = 128;
+/// Side of Face Mesh's square input, in pixels.
+pub const MESH_INPUT: usize = 192;
+/// Face Mesh's points per face.
+pub const MESH_POINTS: usize = 468;
+/// The detector's anchors (16 x 16 cells x 2 at stride 8, 8 x 8 cells x 6 at stride 16).
+pub const ANCHOR_COUNT: usize = 896;
+/// Values the detector regresses per anchor: box (4) and six keypoints (x, y).
+const REGRESSOR_VALUES: usize = 16;
+/// Keypoints per detection (right eye, left eye, nose tip, mouth, right ear, left ear).
+pub const DETECTION_KEYPOINTS: usize = 6;
+/// MediaPipe's `min_score_thresh` for the short-range detector.
+pub const DEFAULT_MIN_DETECTION_SCORE: f32 = 0.5;
+/// MediaPipe's `min_suppression_threshold` (intersection over union).
+pub const DEFAULT_SUPPRESSION_OVERLAP: f32 = 0.3;
+/// MediaPipe's `min_tracking_confidence` default: below this presence the face is lost.
+pub const DEFAULT_MIN_PRESENCE: f32 = 0.5;
+/// `score_clipping_thresh` of the detector's logits.
+const SCORE_CLIP: f32 = 100.0;
+/// The crop around a detection's box or the previous points' box, relative to its longer
+/// side (`RectTransformationCalculator` scale 1.5 with `square_long`).
+pub const CROP_SCALE: f32 = 1.5;
+/// Face Mesh points at the outer corners of the right eye (image left on a frontal face)
+/// and the left eye: the line that is made level when following a face.
+pub const RIGHT_EYE_OUTER: usize = 33;
+pub const LEFT_EYE_OUTER: usize = 263;
+
+/// Where the files come from, for error messages.
+const UPSTREAM: &str = "the PyPI wheel mediapipe==0.10.14 (mediapipe/modules/face_detection/\
+face_detection_short_range.tflite and mediapipe/modules/face_landmark/face_landmark.tflite), \
+converted to ONNX with tf2onnx as shared/models/README.md describes";
+
+/// The model directory used when none is given: `$LIKENESS_MODELS/mediapipe` when
+/// `LIKENESS_MODELS` is set, else `shared/models/mediapipe` beside the repository.
+pub fn default_models_dir() -> PathBuf {
+    match std::env::var_os("LIKENESS_MODELS").filter(|v| !v.is_empty()) {
+        Some(root) => PathBuf::from(root).join("mediapipe"),
+        None => {
+            Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/..")).join("../shared/models/mediapipe")
+        }
+    }
+}
+
+fn missing_model_hint(dir: &Path) -> String {
+    let place = if dir.is_dir() {
+        format!("the directory {} lacks it", dir.display())
+    } else {
+        format!("the directory {} does not exist", dir.display())
+    };
+    format!(
+        "{place}. {DETECTOR_FILE} and {MESH_FILE} are MediaPipe's models from {UPSTREAM}. Point \
+         Likeness at the folder holding them with `--models DIR` (its subfolder `mediapipe`), \
+         or set LIKENESS_MODELS to a directory that holds them in a subfolder `mediapipe`"
+    )
+}
+
+/// A file that exists but does not load or run as the expected network.
+fn damaged_model(path: &Path, error: TrackingError) -> TrackingError {
+    match error {
+        TrackingError::Inference { .. } | TrackingError::BadOutput { .. } => {
+            TrackingError::Decode {
+                path: path.to_owned(),
+                reason: format!(
+                    "{error} (the file is damaged or not this model; fetch it again from {UPSTREAM})"
+                ),
+            }
+        }
+        other => other,
+    }
+}
+
+/// A square region of a frame turned by `angle`: its x axis runs along (cos, sin) of the
+/// angle in frame pixels (y down), so a positive angle turns it clockwise on screen.
+/// MediaPipe's normalised rotated rectangle, in pixels and square.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RotatedSquare {
+    pub centre: Vec2,
+    pub side: f32,
+    /// Radians.
+    pub angle: f32,
+}
+
+impl RotatedSquare {
+    /// The frame point at (u, v) of the square, both in [0, 1] from its top-left corner.
+    pub fn to_frame(&self, uv: Vec2) -> Vec2 {
+        let (sin, cos) = self.angle.sin_cos();
+        let d = (uv - Vec2::splat(0.5)) * self.side;
+        self.centre + Vec2::new(cos * d.x - sin * d.y, sin * d.x + cos * d.y)
+    }
+
+    /// The inverse of [`RotatedSquare::to_frame`].
+    pub fn to_square(&self, p: Vec2) -> Vec2 {
+        let (sin, cos) = self.angle.sin_cos();
+        let d = p - self.centre;
+        Vec2::new(cos * d.x + sin * d.y, -sin * d.x + cos * d.y) / self.side + Vec2::splat(0.5)
+    }
+
+    pub fn is_valid(&self) -> bool {
+        self.centre.is_finite()
+            && self.side.is_finite()
+            && self.side > 0.0
+            && self.angle.is_finite()
+    }
+
+    /// MediaPipe's crop around `bounds` (frame pixels): square on the longer side, scaled
+    /// by [`CROP_SCALE`], turned so that the line from `from` to `to` is level.
+    pub fn around(bounds: Rect, from: Vec2, to: Vec2) -> Self {
+        let d = to - from;
+        Self {
+            centre: bounds.centre(),
+            side: bounds.width.max(bounds.height) * CROP_SCALE,
+            angle: d.y.atan2(d.x),
+        }
+    }
+}
+
+/// The square `square` of `image` sampled to `out` x `out` RGB values, NHWC, each
+/// `v / 255 * scale + offset`; the frame's outside is black.
+///
+/// Written here rather than with `image::imageops`: the crop is turned and may reach
+/// outside the frame, and no resizing crate samples a rotated square. Output pixel (r, c)
+/// averages k x k bilinear samples at square coordinates ((c + (a + 0.5) / k) / out,
+/// (r + (b + 0.5) / k) / out), k = ceil(side / out) (a box prefilter against aliasing when
+/// a large face is shrunk), as [`crate::preprocess`] does for axis-aligned crops.
+pub fn sample_square_nhwc(
+    image: &RgbImage,
+    square: RotatedSquare,
+    out: usize,
+    scale: f32,
+    offset: f32,
+) -> Result<Tensor> {
+    let (iw, ih) = (image.width() as usize, image.height() as usize);
+    if iw == 0 || ih == 0 {
+        return Err(TrackingError::InvalidInput("the image is empty".into()));
+    }
+    if !square.is_valid() || out == 0 {
+        return Err(TrackingError::InvalidInput(format!(
+            "crop {square:?} is empty or not finite"
+        )));
+    }
+    let taps = ((square.side / out as f32).ceil() as usize).clamp(1, 16);
+    let raw = image.as_raw();
+    let texel = |x: isize, y: isize| -> [f32; 3] {
+        if x < 0 || y < 0 || x as usize >= iw || y as usize >= ih {
+            return [0.0; 3];
+        }
+        let i = (y as usize * iw + x as usize) * 3;
+        [
+            f32::from(raw[i]),
+            f32::from(raw[i + 1]),
+            f32::from(raw[i + 2]),
+        ]
+    };
+    let mut data = vec![0.0f32; out * out * 3];
+    let inv = 1.0 / (taps * taps) as f32;
+    for r in 0..out {
+        for c in 0..out {
+            let mut acc = [0.0f32; 3];
+            for b in 0..taps {
+                for a in 0..taps {
+                    let uv = Vec2::new(
+                        (c as f32 + (a as f32 + 0.5) / taps as f32) / out as f32,
+                        (r as f32 + (b as f32 + 0.5) / taps as f32) / out as f32,
+                    );
+                    // Pixel centres sit at j + 0.5.
+                    let p = square.to_frame(uv) - Vec2::splat(0.5);
+                    let (x0, y0) = (p.x.floor(), p.y.floor());
+                    let (fx, fy) = (p.x - x0, p.y - y0);
+                    let (x0, y0) = (x0 as isize, y0 as isize);
+                    let t00 = texel(x0, y0);
+                    let t10 = texel(x0 + 1, y0);
+                    let t01 = texel(x0, y0 + 1);
+                    let t11 = texel(x0 + 1, y0 + 1);
+                    for ch in 0..3 {
+                        let top = t00[ch] + (t10[ch] - t00[ch]) * fx;
+                        let bottom = t01[ch] + (t11[ch] - t01[ch]) * fx;
+                        acc[ch] += top + (bottom - top) * fy;
+                    }
+                }
+            }
+            let o = (r * out + c) * 3;
+            for ch in 0..3 {
+                data[o + ch] = acc[ch] * inv / 255.0 * scale + offset;
+            }
+        }
+    }
+    Tensor::new(vec![1, out, out, 3], data)
+}
+
+/// The centres of the detector's anchors in [0, 1] of its input, in the order of its
+/// outputs. MediaPipe's `SsdAnchorsCalculator` with the short-range options (4 layers,
+/// strides 8, 16, 16, 16, aspect ratio 1 plus the interpolated scale, `fixed_anchor_size`):
+/// layers of equal stride share one grid, so stride 8 gives 2 anchors per cell of 16 x 16
+/// and stride 16 gives 6 per cell of 8 x 8; with a fixed size only the centres matter.
+pub fn detector_anchors() -> Vec<Vec2> {
+    let mut anchors = Vec::with_capacity(ANCHOR_COUNT);
+    for (stride, per_cell) in [(8usize, 2usize), (16, 6)] {
+        let grid = DETECTOR_INPUT.div_ceil(stride);
+        for y in 0..grid {
+            for x in 0..grid {
+                let centre = Vec2::new(
+                    (x as f32 + 0.5) / grid as f32,
+                    (y as f32 + 0.5) / grid as f32,
+                );
+                anchors.extend(std::iter::repeat_n(centre, per_cell));
+            }
+        }
+    }
+    anchors
+}
+
+/// A face the detector found.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshDetection {
+    /// Frame pixels.
+    pub face_box: Rect,
+    /// Right eye, left eye, nose tip, mouth centre, right ear, left ear; frame pixels.
+    pub keypoints: [Vec2; DETECTION_KEYPOINTS],
+    /// 0..1.
+    pub score: f32,
+}
+
+impl MeshDetection {
+    /// Where Face Mesh looks for this face (MediaPipe's `face_detection_front_detection_to_roi`).
+    pub fn crop(&self) -> RotatedSquare {
+        RotatedSquare::around(self.face_box, self.keypoints[0], self.keypoints[1])
+    }
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// The detections in the detector's raw outputs (`regressors` [896 x 16], `logits` [896])
+/// scoring at least `min_score`, in [0, 1] of its input, before suppression; MediaPipe's
+/// `TensorsToDetectionsCalculator` (x first, every value in input pixels relative to its
+/// anchor's centre).
+pub fn decode_detections(
+    regressors: &[f32],
+    logits: &[f32],
+    anchors: &[Vec2],
+    min_score: f32,
+) -> Vec<MeshDetection> {
+    let scale = DETECTOR_INPUT as f32;
+    let mut found = Vec::new();
+    for (i, anchor) in anchors.iter().enumerate() {
+        let (Some(raw), Some(&logit)) = (
+            regressors.get(i * REGRESSOR_VALUES..(i + 1) * REGRESSOR_VALUES),
+            logits.get(i),
+        ) else {
+            break;
+        };
+        let score = sigmoid(logit.clamp(-SCORE_CLIP, SCORE_CLIP));
+        if score.is_nan() || score < min_score {
+            continue;
+        }
+        let centre = *anchor + Vec2::new(raw[0], raw[1]) / scale;
+        let size = Vec2::new(raw[2], raw[3]) / scale;
+        let keypoints =
+            std::array::from_fn(|k| *anchor + Vec2::new(raw[4 + 2 * k], raw[5 + 2 * k]) / scale);
+        let face_box = Rect {
+            x: centre.x - 0.5 * size.x,
+            y: centre.y - 0.5 * size.y,
+            width: size.x,
+            height: size.y,
+        };
+        if face_box.is_valid() && keypoints.iter().all(|k: &Vec2| k.is_finite()) {
+            found.push(MeshDetection {
+                face_box,
+                keypoints,
+                score,
+            });
+        }
+    }
+    found
+}
+
+/// MediaPipe's weighted non-maximum suppression: the best remaining detection takes every
+/// remaining one overlapping it by more than `overlap` (intersection over union) and
+/// becomes their score-weighted average (box corners and keypoints), keeping its own
+/// score. Best first.
+pub fn weighted_suppression(
+    mut detections: Vec<MeshDetection>,
+    overlap: f32,
+) -> Vec<MeshDetection> {
+    detections.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let mut kept = Vec::new();
+    while let Some(best) = detections.first().copied() {
+        let (cluster, rest): (Vec<_>, Vec<_>) = detections
+            .into_iter()
+            .partition(|d| intersection_over_union(best.face_box, d.face_box) > overlap);
+        detections = rest;
+        // `best` overlaps itself fully, so a cluster is never empty; a box of zero area
+        // (IoU 0 with itself) is its own cluster.
+        let cluster = if cluster.is_empty() {
+            vec![best]
+        } else {
+            cluster
+        };
+        let total: f32 = cluster.iter().map(|d| d.score).sum();
+        let mut lo = Vec2::ZERO;
+        let mut hi = Vec2::ZERO;
+        let mut keypoints = [Vec2::ZERO; DETECTION_KEYPOINTS];
+        for d in &cluster {
+            let w = d.score / total;
+            lo += w * Vec2::new(d.face_box.x, d.face_box.y);
+            hi += w * Vec2::new(
+                d.face_box.x + d.face_box.width,
+                d.face_box.y + d.face_box.height,
+            );
+            for (k, p) in keypoints.iter_mut().zip(d.keypoints) {
+                *k += w * p;
+            }
+        }
+        kept.push(MeshDetection {
+            face_box: Rect {
+                x: lo.x,
+                y: lo.y,
+                width: hi.x - lo.x,
+                height: hi.y - lo.y,
+            },
+            keypoints,
+            score: best.score,
+        });
+    }
+    kept
+}
+
+/// Face Mesh's output for one face.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaceMesh {
+    /// 468 points, x and y in frame pixels, z at the same scale (relative depth, larger is
+    /// farther from the camera, as MediaPipe's).
+    pub points: Vec<Vec3>,
+    /// The face-presence probability, 0..1.
+    pub presence: f32,
+    /// The crop the points were found in.
+    pub crop: RotatedSquare,
+}
+
+impl FaceMesh {
+    /// The points' image positions.
+    pub fn points_2d(&self) -> impl Iterator<Item = Vec2> + '_ {
+        self.points.iter().map(|p| p.truncate())
+    }
+
+    /// Where to look for this face in the next frame (MediaPipe's
+    /// `face_landmark_landmarks_to_roi`); `None` when the points do not span a box.
+    pub fn next_crop(&self) -> Option<RotatedSquare> {
+        let bounds = Rect::bounding(self.points_2d())?;
+        let crop = RotatedSquare::around(
+            bounds,
+            self.points[RIGHT_EYE_OUTER].truncate(),
+            self.points[LEFT_EYE_OUTER].truncate(),
+        );
+        crop.is_valid().then_some(crop)
+    }
+}
+
+/// BlazeFace and Face Mesh on one backend.
+pub struct MediaPipe {
+    detector: Box<dyn InferenceBackend>,
+    mesh: Box<dyn InferenceBackend>,
+    detector_name: String,
+    mesh_name: String,
+    kind: BackendKind,
+    anchors: Vec<Vec2>,
+    min_detection_score: f32,
+    suppression_overlap: f32,
+}
+
+impl MediaPipe {
+    /// Loads both networks from `dir` and runs each once on a blank input, so that a file
+    /// which parses but cannot run (or answers in other shapes) fails here, not on the
+    /// first frame.
+    pub fn load(dir: &Path, kind: BackendKind, threads: usize) -> Result<Self> {
+        let (detector_path, mesh_path) = (dir.join(DETECTOR_FILE), dir.join(MESH_FILE));
+        for path in [&detector_path, &mesh_path] {
+            if !path.is_file() {
+                return Err(TrackingError::MissingModel {
+                    path: path.clone(),
+                    hint: missing_model_hint(dir),
+                });
+            }
+        }
+        let detector = load_model(&detector_path, kind, threads)
+            .map_err(|e| damaged_model(&detector_path, e))?;
+        let mesh =
+            load_model(&mesh_path, kind, threads).map_err(|e| damaged_model(&mesh_path, e))?;
+        Self::from_backends((detector, &detector_path), (mesh, &mesh_path))
+    }
+
+    /// Both networks already loaded (the browser reads them from fetched bytes), each with
+    /// the path its messages name; checked as in [`MediaPipe::load`].
+    pub fn from_backends(
+        detector: (Box<dyn InferenceBackend>, &Path),
+        mesh: (Box<dyn InferenceBackend>, &Path),
+    ) -> Result<Self> {
+        let (detector, detector_path) = detector;
+        let (mesh, mesh_path) = mesh;
+        let kind = detector.kind();
+        let mut located = Self {
+            detector,
+            mesh,
+            detector_name: display_name(detector_path),
+            mesh_name: display_name(mesh_path),
+            kind,
+            anchors: detector_anchors(),
+            min_detection_score: DEFAULT_MIN_DETECTION_SCORE,
+            suppression_overlap: DEFAULT_SUPPRESSION_OVERLAP,
+        };
+        located
+            .run_detector(&Tensor::zeros(vec![1, DETECTOR_INPUT, DETECTOR_INPUT, 3]))
+            .map_err(|e| damaged_model(detector_path, e))?;
+        located
+            .run_mesh(&Tensor::zeros(vec![1, MESH_INPUT, MESH_INPUT, 3]))
+            .map_err(|e| damaged_model(mesh_path, e))?;
+        Ok(located)
+    }
+
+    pub fn kind(&self) -> BackendKind {
+        self.kind
+    }
+
+    pub fn min_detection_score(&self) -> f32 {
+        self.min_detection_score
+    }
+
+    /// The score a detection needs (default [`DEFAULT_MIN_DETECTION_SCORE`]).
+    pub fn set_min_detection_score(&mut self, score: f32) {
+        self.min_detection_score = score;
+    }
+
+    /// The faces in `image`, best first. The frame is letterboxed to the detector's square
+    /// input (centred, black borders), so boxes keep the frame's proportions.
+    pub fn detect(&mut self, image: &RgbImage) -> Result<Vec<MeshDetection>> {
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        let letterbox = RotatedSquare {
+            centre: Vec2::new(0.5 * w, 0.5 * h),
+            side: w.max(h),
+            angle: 0.0,
+        };
+        let input = sample_square_nhwc(image, letterbox, DETECTOR_INPUT, 2.0, -1.0)?;
+        let (regressors, logits) = self.run_detector(&input)?;
+        let found = decode_detections(
+            &regressors,
+            &logits,
+            &self.anchors,
+            self.min_detection_score,
+        );
+        let to_frame = |p: Vec2| letterbox.to_frame(p);
+        let in_frame = found
+            .into_iter()
+            .map(|d| {
+                let lo = to_frame(Vec2::new(d.face_box.x, d.face_box.y));
+                let hi = to_frame(Vec2::new(
+                    d.face_box.x + d.face_box.width,
+                    d.face_box.y + d.face_box.height,
+                ));
+                MeshDetection {
+                    face_box: Rect {
+                        x: lo.x,
+                        y: lo.y,
+                        width: hi.x - lo.x,
+                        height: hi.y - lo.y,
+                    },
+                    keypoints: d.keypoints.map(to_frame),
+                    score: d.score,
+                }
+            })
+            .collect();
+        Ok(weighted_suppression(in_frame, self.suppression_overlap))
+    }
+
+    /// Face Mesh on the square `crop` of `image` (a detection's [`MeshDetection::crop`] or
+    /// the previous frame's [`FaceMesh::next_crop`]).
+    pub fn mesh(&mut self, image: &RgbImage, crop: RotatedSquare) -> Result<FaceMesh> {
+        let input = sample_square_nhwc(image, crop, MESH_INPUT, 1.0, 0.0)?;
+        let (raw, logit) = self.run_mesh(&input)?;
+        let size = MESH_INPUT as f32;
+        let points = raw
+            .chunks_exact(3)
+            .map(|p| {
+                let xy = crop.to_frame(Vec2::new(p[0], p[1]) / size);
+                xy.extend(p[2] / size * crop.side)
+            })
+            .collect();
+        Ok(FaceMesh {
+            points,
+            presence: sigmoid(logit),
+            crop,
+        })
+    }
+
+    /// The detector's `regressors` [896 x 16] and `classificators` [896], checked.
+    fn run_detector(&mut self, input: &Tensor) -> Result<(Vec<f32>, Vec<f32>)> {
+        let mut outputs = self.detector.run(input)?.into_iter();
+        let (Some(regressors), Some(logits)) = (outputs.next(), outputs.next()) else {
+            return Err(TrackingError::BadOutput {
+                model: self.detector_name.clone(),
+                reason: "count: expected `regressors` and `classificators`".into(),
+            });
+        };
+        check_output(
+            &regressors,
+            &[1, ANCHOR_COUNT, REGRESSOR_VALUES],
+            &self.detector_name,
+            "regressors",
+        )?;
+        check_output(
+            &logits,
+            &[1, ANCHOR_COUNT, 1],
+            &self.detector_name,
+            "classificators",
+        )?;
+        Ok((regressors.data, logits.data))
+    }
+
+    /// Face Mesh's 468 x 3 values and its presence logit, checked.
+    fn run_mesh(&mut self, input: &Tensor) -> Result<(Vec<f32>, f32)> {
+        let mut outputs = self.mesh.run(input)?.into_iter();
+        let (Some(points), Some(presence)) = (outputs.next(), outputs.next()) else {
+            return Err(TrackingError::BadOutput {
+                model: self.mesh_name.clone(),
+                reason: "count: expected `conv2d_21` and `conv2d_31`".into(),
+            });
+        };
+        check_output(
+            &points,
+            &[1, 1, 1, MESH_POINTS * 3],
+            &self.mesh_name,
+            "conv2d_21",
+        )?;
+        check_output(&presence, &[1, 1, 1, 1], &self.mesh_name, "conv2d_31")?;
+        Ok((points.data, presence.data[0]))
+    }
+}
