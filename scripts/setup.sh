@@ -81,6 +81,21 @@ shutil.rmtree(out / "wheel")
 PY
 fi
 
+# MediaPipe's own Face Mesh (PyPI, with scikit-image's public-domain test photographs) for
+# the tracking crate's reference-parity test, in a venv of its own: its pins are not the
+# training venv's. Reinstalled when tracking/tests/reference/requirements.txt changes.
+# A venv moved here keeps its old paths inside, so it is made where it stays.
+root_dir="$(cd "$(dirname "$0")/.." && pwd)"
+mp_venv="$root_dir/.cache/mediapipe-venv"
+mp_requirements="$root_dir/tracking/tests/reference/requirements.txt"
+mp_want="$(sha256sum "$mp_requirements" | cut -d' ' -f1)"
+if [ "$(cat "$mp_venv/.likeness-requirements.sha256" 2>/dev/null || true)" != "$mp_want" ]; then
+  echo "setup: installing MediaPipe's reference Face Mesh (PyPI) into $mp_venv"
+  [ -x "$mp_venv/bin/python" ] || python3 -m venv "$mp_venv"
+  "$mp_venv/bin/python" -m pip install --disable-pip-version-check -q -r "$mp_requirements"
+  echo "$mp_want" > "$mp_venv/.likeness-requirements.sha256"
+fi
+
 if [ "$web" -eq 0 ]; then
   exit 0
 fi

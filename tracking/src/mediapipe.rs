@@ -27,6 +27,8 @@
 //!
 //! Coordinates: every point and box is in frame pixels of the image passed in, continuous,
 //! pixel (row i, column j) covering [j, j+1) x [i, i+1), as in [`crate::preprocess`].
+//! MediaPipe's own coordinates put pixel centres at integers: its points are ours minus
+//! half a pixel.
 
 use std::path::{Path, PathBuf};
 
@@ -159,22 +161,36 @@ impl RotatedSquare {
     }
 }
 
+/// What the sampler reads outside the frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Border {
+    /// Black (MediaPipe's `BORDER_ZERO`, the detector's letterbox).
+    Black,
+    /// The nearest edge pixel (MediaPipe's default `BORDER_REPLICATE`, Face Mesh's crop).
+    Replicate,
+}
+
 /// The square `square` of `image` sampled to `out` x `out` RGB values, NHWC, each
-/// `v / 255 * scale + offset`; the frame's outside is black.
+/// `v / 255 * scale + offset`, as MediaPipe's CPU `ImageToTensorCalculator` samples it:
+/// OpenCV's bilinear warp, which puts pixel centres at integer coordinates and maps output
+/// pixel (r, c) to the square's point (c / out, r / out), with no prefilter when it
+/// shrinks. Matching it is what makes our points MediaPipe's: on the real crop framed in
+/// a 640 x 480 frame, sampling pixel centres with a box prefilter (as
+/// [`crate::preprocess`] does) moved the points 2.0 px (median) from MediaPipe's own, this
+/// sampling 0.02 px (tests/mediapipe.rs). In this module's continuous coordinates
+/// (centres at +0.5) that point is `square.to_frame(..) - 0.5` in OpenCV's.
 ///
-/// Written here rather than with `image::imageops`: the crop is turned and may reach
-/// outside the frame, and no resizing crate samples a rotated square. Output pixel (r, c)
-/// averages k x k bilinear samples at square coordinates ((c + (a + 0.5) / k) / out,
-/// (r + (b + 0.5) / k) / out), k = ceil(side / out) (a box prefilter against aliasing when
-/// a large face is shrunk), as [`crate::preprocess`] does for axis-aligned crops.
+/// Written here rather than with `image::imageops`: the crop is turned and reaches outside
+/// the frame, which no resizing crate samples.
 pub fn sample_square_nhwc(
     image: &RgbImage,
     square: RotatedSquare,
     out: usize,
     scale: f32,
     offset: f32,
+    border: Border,
 ) -> Result<Tensor> {
-    let (iw, ih) = (image.width() as usize, image.height() as usize);
+    let (iw, ih) = (image.width() as isize, image.height() as isize);
     if iw == 0 || ih == 0 {
         return Err(TrackingError::InvalidInput("the image is empty".into()));
     }
@@ -183,13 +199,14 @@ pub fn sample_square_nhwc(
             "crop {square:?} is empty or not finite"
         )));
     }
-    let taps = ((square.side / out as f32).ceil() as usize).clamp(1, 16);
     let raw = image.as_raw();
     let texel = |x: isize, y: isize| -> [f32; 3] {
-        if x < 0 || y < 0 || x as usize >= iw || y as usize >= ih {
-            return [0.0; 3];
-        }
-        let i = (y as usize * iw + x as usize) * 3;
+        let (x, y) = match border {
+            Border::Replicate => (x.clamp(0, iw - 1), y.clamp(0, ih - 1)),
+            Border::Black if x < 0 || y < 0 || x >= iw || y >= ih => return [0.0; 3],
+            Border::Black => (x, y),
+        };
+        let i = (y * iw + x) as usize * 3;
         [
             f32::from(raw[i]),
             f32::from(raw[i + 1]),
@@ -197,35 +214,21 @@ pub fn sample_square_nhwc(
         ]
     };
     let mut data = vec![0.0f32; out * out * 3];
-    let inv = 1.0 / (taps * taps) as f32;
+    let to_unit = scale / 255.0;
     for r in 0..out {
         for c in 0..out {
-            let mut acc = [0.0f32; 3];
-            for b in 0..taps {
-                for a in 0..taps {
-                    let uv = Vec2::new(
-                        (c as f32 + (a as f32 + 0.5) / taps as f32) / out as f32,
-                        (r as f32 + (b as f32 + 0.5) / taps as f32) / out as f32,
-                    );
-                    // Pixel centres sit at j + 0.5.
-                    let p = square.to_frame(uv) - Vec2::splat(0.5);
-                    let (x0, y0) = (p.x.floor(), p.y.floor());
-                    let (fx, fy) = (p.x - x0, p.y - y0);
-                    let (x0, y0) = (x0 as isize, y0 as isize);
-                    let t00 = texel(x0, y0);
-                    let t10 = texel(x0 + 1, y0);
-                    let t01 = texel(x0, y0 + 1);
-                    let t11 = texel(x0 + 1, y0 + 1);
-                    for ch in 0..3 {
-                        let top = t00[ch] + (t10[ch] - t00[ch]) * fx;
-                        let bottom = t01[ch] + (t11[ch] - t01[ch]) * fx;
-                        acc[ch] += top + (bottom - top) * fy;
-                    }
-                }
-            }
+            let uv = Vec2::new(c as f32, r as f32) / out as f32;
+            let p = square.to_frame(uv) - Vec2::splat(0.5);
+            let (x0, y0) = (p.x.floor(), p.y.floor());
+            let (fx, fy) = (p.x - x0, p.y - y0);
+            let (x0, y0) = (x0 as isize, y0 as isize);
+            let (t00, t10) = (texel(x0, y0), texel(x0 + 1, y0));
+            let (t01, t11) = (texel(x0, y0 + 1), texel(x0 + 1, y0 + 1));
             let o = (r * out + c) * 3;
             for ch in 0..3 {
-                data[o + ch] = acc[ch] * inv / 255.0 * scale + offset;
+                let top = t00[ch] + (t10[ch] - t00[ch]) * fx;
+                let bottom = t01[ch] + (t11[ch] - t01[ch]) * fx;
+                data[o + ch] = (top + (bottom - top) * fy) * to_unit + offset;
             }
         }
     }
@@ -480,12 +483,14 @@ impl MediaPipe {
     /// input (centred, black borders), so boxes keep the frame's proportions.
     pub fn detect(&mut self, image: &RgbImage) -> Result<Vec<MeshDetection>> {
         let (w, h) = (image.width() as f32, image.height() as f32);
+        // MediaPipe centres its letterbox at (w/2, h/2) of its coordinates, where pixel
+        // centres are integers: half a pixel right of and below the frame's centre in ours.
         let letterbox = RotatedSquare {
-            centre: Vec2::new(0.5 * w, 0.5 * h),
+            centre: Vec2::new(0.5 * w + 0.5, 0.5 * h + 0.5),
             side: w.max(h),
             angle: 0.0,
         };
-        let input = sample_square_nhwc(image, letterbox, DETECTOR_INPUT, 2.0, -1.0)?;
+        let input = sample_square_nhwc(image, letterbox, DETECTOR_INPUT, 2.0, -1.0, Border::Black)?;
         let (regressors, logits) = self.run_detector(&input)?;
         let found = decode_detections(
             &regressors,
@@ -520,7 +525,7 @@ impl MediaPipe {
     /// Face Mesh on the square `crop` of `image` (a detection's [`MeshDetection::crop`] or
     /// the previous frame's [`FaceMesh::next_crop`]).
     pub fn mesh(&mut self, image: &RgbImage, crop: RotatedSquare) -> Result<FaceMesh> {
-        let input = sample_square_nhwc(image, crop, MESH_INPUT, 1.0, 0.0)?;
+        let input = sample_square_nhwc(image, crop, MESH_INPUT, 1.0, 0.0, Border::Replicate)?;
         let (raw, logit) = self.run_mesh(&input)?;
         let size = MESH_INPUT as f32;
         let points = raw

@@ -12,7 +12,7 @@ use glam::Vec2;
 use image::{Rgb, RgbImage};
 use tracking::backend::onnxruntime_status;
 use tracking::mediapipe::{
-    ANCHOR_COUNT, CROP_SCALE, DETECTOR_FILE, FaceMesh, MESH_FILE, MESH_POINTS, MediaPipe,
+    ANCHOR_COUNT, Border, CROP_SCALE, DETECTOR_FILE, FaceMesh, MESH_FILE, MESH_POINTS, MediaPipe,
     MeshDetection, RotatedSquare, decode_detections, default_models_dir, detector_anchors,
     sample_square_nhwc, weighted_suppression,
 };
@@ -202,7 +202,7 @@ fn a_rotated_crop_maps_back_to_where_it_was_sampled() {
     let mut image = RgbImage::new(80, 60);
     image.put_pixel(47, 25, Rgb([255, 255, 255]));
     let out = 24;
-    let tensor = sample_square_nhwc(&image, square, out, 1.0, 0.0).unwrap();
+    let tensor = sample_square_nhwc(&image, square, out, 1.0, 0.0, Border::Black).unwrap();
     assert_eq!(tensor.shape, vec![1, out, out, 3]);
     let brightest = (0..out * out)
         .max_by(|&a, &b| tensor.data[a * 3].total_cmp(&tensor.data[b * 3]))
@@ -213,16 +213,23 @@ fn a_rotated_crop_maps_back_to_where_it_was_sampled() {
     );
     let expected = square.to_square(Vec2::new(47.5, 25.5)) * out as f32;
     assert!((found - expected).length() <= 1.0, "{found} vs {expected}");
-    // Scale and offset: a white frame reads 2 * 1 - 1 = 1 inside, black (-1) outside.
+    // Scale and offset: a white 10 x 10 frame reads 2 * 1 - 1 = 1 inside; column c of the
+    // crop samples frame x = 5 + c (continuous), OpenCV's x = 4.5 + c: column 5 blends the
+    // last white pixel and the black border half and half (0), column 8 is outside: black
+    // (-1), or the edge pixel when replicated.
     let white = RgbImage::from_pixel(10, 10, Rgb([255, 255, 255]));
     let half_out = RotatedSquare {
         centre: Vec2::new(10.0, 5.0),
         side: 10.0,
         angle: 0.0,
     };
-    let t = sample_square_nhwc(&white, half_out, 10, 2.0, -1.0).unwrap();
-    assert!((t.data[(5 * 10 + 1) * 3] - 1.0).abs() < 1e-6);
-    assert!((t.data[(5 * 10 + 8) * 3] + 1.0).abs() < 1e-6);
+    let t = sample_square_nhwc(&white, half_out, 10, 2.0, -1.0, Border::Black).unwrap();
+    let at = |t: &tracking::Tensor, c: usize| t.data[(5 * 10 + c) * 3];
+    assert!((at(&t, 1) - 1.0).abs() < 1e-6);
+    assert!(at(&t, 5).abs() < 1e-6, "{}", at(&t, 5));
+    assert!((at(&t, 8) + 1.0).abs() < 1e-6);
+    let t = sample_square_nhwc(&white, half_out, 10, 2.0, -1.0, Border::Replicate).unwrap();
+    assert!((at(&t, 5) - 1.0).abs() < 1e-6 && (at(&t, 8) - 1.0).abs() < 1e-6);
     // Bad crops are errors, not panics.
     for bad in [
         RotatedSquare {
@@ -239,11 +246,13 @@ fn a_rotated_crop_maps_back_to_where_it_was_sampled() {
         },
     ] {
         assert!(matches!(
-            sample_square_nhwc(&image, bad, out, 1.0, 0.0),
+            sample_square_nhwc(&image, bad, out, 1.0, 0.0, Border::Black),
             Err(TrackingError::InvalidInput(_))
         ));
     }
-    assert!(sample_square_nhwc(&RgbImage::new(0, 0), square, out, 1.0, 0.0).is_err());
+    assert!(
+        sample_square_nhwc(&RgbImage::new(0, 0), square, out, 1.0, 0.0, Border::Black).is_err()
+    );
 }
 
 fn assert_near_marks(
@@ -256,7 +265,7 @@ fn assert_near_marks(
     for ((got, mark), tolerance) in mesh_features(mesh)
         .into_iter()
         .zip(marked)
-        .zip([0.06, 0.06, 0.15, 0.15])
+        .zip([0.06, 0.06, 0.2, 0.2])
     {
         assert!(
             (got - mark).length() < tolerance * eye_distance,
@@ -305,9 +314,9 @@ fn finds_the_real_face(kind: BackendKind) {
     assert_eq!(mesh.points.len(), MESH_POINTS);
     assert!(mesh.presence > 0.9, "{kind}: presence {}", mesh.presence);
     // Face Mesh's eye centres within 6 % of the eye distance (~4 px) of the marks; its nose
-    // tip and mouth middle within 15 % (~9 px): those two marks are coarse (the nose mark
-    // sits on the bridge above the tip, `mesh_overlay_is_written` shows both). Reference
-    // parity with MediaPipe's own Python solution is the sharp check (issue 32, item 4).
+    // tip and mouth middle within 20 % (~12 px): those two marks are coarse (the nose mark
+    // sits on the bridge 8-10 px above the tip, `mesh_overlay_is_written` shows both).
+    // The sharp check is the parity with MediaPipe's own solution below.
     assert_near_marks(&mesh, marked, eye_distance, kind, "frame");
     // Following: the crop from the points finds them again, as it would on the next
     // frame of a still face. The first such crop differs from the detection's (a box of
@@ -487,4 +496,102 @@ fn mesh_overlay_is_written() {
     if let Err(e) = canvas.save(&path) {
         panic!("cannot write {}: {e}", path.display());
     }
+}
+
+/// The reference venv's Python (`scripts/setup.sh` makes it), or `LIKENESS_MEDIAPIPE_PYTHON`.
+fn reference_python() -> std::path::PathBuf {
+    match std::env::var_os("LIKENESS_MEDIAPIPE_PYTHON").filter(|v| !v.is_empty()) {
+        Some(p) => p.into(),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../.cache/mediapipe-venv/bin/python"),
+    }
+}
+
+/// MediaPipe's own Face Mesh (tests/reference/mediapipe_face_mesh.py) on `images`, after
+/// writing scikit-image's astronaut photographs into `dir`.
+fn reference_points(dir: &Path, images: &[std::path::PathBuf]) -> serde_json::Value {
+    let python = reference_python();
+    assert!(
+        python.is_file(),
+        "the MediaPipe reference venv is missing ({}): scripts/setup.sh installs it from \
+         tracking/tests/reference/requirements.txt (into .cache/mediapipe-venv), or set \
+         LIKENESS_MEDIAPIPE_PYTHON",
+        python.display()
+    );
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/mediapipe_face_mesh.py");
+    let output = std::process::Command::new(&python)
+        .arg(&script)
+        .arg("--write-astronaut")
+        .arg(dir)
+        .args(images)
+        .env("OMP_NUM_THREADS", "1")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python.display()));
+    assert!(
+        output.status.success(),
+        "{} failed: {}",
+        script.display(),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).expect("the reference prints JSON")
+}
+
+/// Issue 32, item 4: on real photographs (the OpenSeeFace crop, that crop inside a larger
+/// frame, scikit-image's astronaut in colour and in grey) our BlazeFace + Face Mesh put
+/// the 468 points within 1 px (median) of MediaPipe's own Python solution on the same
+/// image, with both backends (measured: 0.007-0.02 px in a frame, 0.4 px on the close-up
+/// whose crop reaches past the image).
+#[test]
+fn face_mesh_matches_mediapipes_own_solution_on_real_photographs() {
+    let dir = std::env::temp_dir().join(format!("likeness-mediapipe-ref-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let crop_path = dir.join("openseeface-raw1.png");
+    real_crop().save(&crop_path).unwrap();
+    let framed_path = dir.join("openseeface-raw1-in-frame.png");
+    frame_with_face((300, 150)).save(&framed_path).unwrap();
+    let images = [
+        crop_path,
+        framed_path,
+        dir.join("astronaut.png"),
+        dir.join("astronaut-grey.png"),
+    ];
+    let reference = reference_points(&dir, &images);
+    for kind in [BackendKind::OnnxRuntime, BackendKind::Tract] {
+        let mut located = load(kind);
+        for path in &images {
+            let key = path.to_string_lossy();
+            let theirs: Vec<Vec2> = reference[key.as_ref()]
+                .as_array()
+                .unwrap_or_else(|| panic!("MediaPipe found no face in {key}"))
+                .iter()
+                // MediaPipe's coordinates put pixel centres at integers, ours at +0.5.
+                .map(|p| {
+                    Vec2::new(p[0].as_f64().unwrap() as f32, p[1].as_f64().unwrap() as f32) + 0.5
+                })
+                .collect();
+            assert_eq!(theirs.len(), MESH_POINTS);
+            let image = image::open(path).unwrap().to_rgb8();
+            let detections = located.detect(&image).unwrap();
+            let best = detections
+                .first()
+                .unwrap_or_else(|| panic!("{kind}: no face in {key}"));
+            let ours = located.mesh(&image, best.crop()).unwrap();
+            let mut distances: Vec<f32> = ours
+                .points_2d()
+                .zip(&theirs)
+                .map(|(a, b)| (a - *b).length())
+                .collect();
+            distances.sort_by(f32::total_cmp);
+            let (median, worst) = (
+                distances[distances.len() / 2],
+                distances[distances.len() - 1],
+            );
+            eprintln!("{kind}: {key}: median {median:.3} px, largest {worst:.3} px");
+            assert!(
+                median < 1.0,
+                "{kind}: {key}: median {median} px from MediaPipe's"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
