@@ -197,16 +197,18 @@ struct TrackingArgs {
     /// keeps a core per stage; ModelNet, which runs alone, uses all cores.
     #[arg(long, default_value_t = 1)]
     threads: usize,
-    /// How faces are found: auto or landmarks (OpenSeeFace detection; a missing, mistyped
-    /// or broken --models folder is an error that says what it should hold), or
-    /// precropped (every image is taken as a face crop framed like the training images,
-    /// without the models; the output's settings say `"locator": "precropped"`).
+    /// How faces are found: auto or openseeface (OpenSeeFace detection and 66 landmarks; a
+    /// missing, mistyped or broken --models folder is an error that says what it should
+    /// hold), mediapipe (MediaPipe's BlazeFace and 468-point Face Mesh), or precropped
+    /// (every image is taken as a face crop framed like the training images, without the
+    /// models; the output's settings say `"locator": "precropped"`).
     #[arg(long, default_value = "auto")]
     locator: String,
-    /// Folder of the OpenSeeFace models (mnv3_detection_opt.onnx and lm_model0_opt.onnx
-    /// for ONNX Runtime; the *_plain_b1.onnx rewrites for tract). Default:
-    /// $LIKENESS_MODELS/openseeface, else ../shared/models/openseeface beside the
-    /// repository.
+    /// Folder of the locator's models: OpenSeeFace's (mnv3_detection_opt.onnx and
+    /// lm_model0_opt.onnx for ONNX Runtime; the *_plain_b1.onnx rewrites for tract), or
+    /// with --locator mediapipe MediaPipe's (face_detection_short_range.onnx,
+    /// face_landmark.onnx). Default: $LIKENESS_MODELS/openseeface (or /mediapipe), else
+    /// ../shared/models/openseeface (or mediapipe) beside the repository.
     #[arg(long, value_name = "DIR")]
     models: Option<PathBuf>,
     /// Folder of Likeness's networks (manifest.json, track_net.onnx, model_net.onnx).
@@ -241,7 +243,10 @@ impl TrackingArgs {
             config.networks_dir = dir.clone();
         }
         if let Some(dir) = &self.models {
-            config.models_dir = dir.clone();
+            match config.locator {
+                tracking::pipeline::LocatorChoice::MediaPipe => config.mediapipe_dir = dir.clone(),
+                _ => config.models_dir = dir.clone(),
+            }
         }
         if self.no_refine {
             config.refine = None;

@@ -249,7 +249,7 @@ pub fn run_personalize(
 fn settings_json(tracker: &Tracker, options: &TrackOptions) -> serde_json::Value {
     serde_json::json!({
         "backend": tracker.backend().to_string(),
-        "locator": if tracker.uses_landmarks() { "openseeface" } else { "precropped" },
+        "locator": tracker.locator_name(),
         "refinement": options.config.refine.is_some(),
         "smoothing": options.config.smoothing.to_string(),
         "fov_deg": options.config.fov_deg,
@@ -316,6 +316,16 @@ pub fn tracking_inputs(inputs: &[&str], config: &TrackerConfig) -> Vec<(String, 
         paths.push(("the OpenSeeFace detector".into(), detector));
         paths.push(("the OpenSeeFace landmark model".into(), landmarks));
     }
+    paths.push((
+        "the MediaPipe detector".into(),
+        config
+            .mediapipe_dir
+            .join(tracking::mediapipe::DETECTOR_FILE),
+    ));
+    paths.push((
+        "the MediaPipe Face Mesh model".into(),
+        config.mediapipe_dir.join(tracking::mediapipe::MESH_FILE),
+    ));
     paths
 }
 

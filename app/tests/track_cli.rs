@@ -270,3 +270,57 @@ fn bad_input_is_a_clear_error() {
     assert!(!o.status.success());
     assert!(text(&o).contains("face detection"), "{}", text(&o));
 }
+
+/// `--locator mediapipe`: MediaPipe's BlazeFace and Face Mesh find the real 224 px
+/// close-up (which OpenSeeFace's detector misses) and the output says which locator ran;
+/// a models folder without MediaPipe's files is an error naming them.
+#[test]
+fn track_a_close_up_with_the_mediapipe_locator() {
+    let dir = out_dir("mediapipe");
+    let out = dir.join("t.json");
+    let still = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/testdata/faces/openseeface-raw1.png");
+    let o = likeness(&[
+        "track",
+        still.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--locator",
+        "mediapipe",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let v = json(&out);
+    assert_eq!(v["settings"]["locator"], serde_json::json!("mediapipe"));
+    let frame = &v["frames"][0];
+    assert_eq!(frame["face"], serde_json::json!(true), "{frame}");
+    let points = frame["landmarks_68"].as_array().expect("landmarks");
+    assert_eq!(points.len(), 68);
+    for p in points {
+        let (x, y) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+        assert!(
+            (0.0..224.0).contains(&x) && (0.0..224.0).contains(&y),
+            "{p}"
+        );
+    }
+    let empty = dir.join("no-models");
+    std::fs::create_dir_all(&empty).unwrap();
+    let o = likeness(&[
+        "track",
+        still.to_str().unwrap(),
+        "--out",
+        dir.join("u.json").to_str().unwrap(),
+        "--locator",
+        "mediapipe",
+        "--models",
+        empty.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(!o.status.success());
+    let message = text(&o);
+    assert!(
+        message.contains("face_detection_short_range.onnx")
+            && message.contains("mediapipe==0.10.14"),
+        "{message}"
+    );
+}

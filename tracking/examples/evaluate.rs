@@ -7,8 +7,9 @@
 //!
 //! `cargo run --release -p tracking --example evaluate [-- --backend tract]
 //! [--weight-prior X] [--weight-sparsity X] [--rotation-prior X] [--translation-prior X]
-//! [--smooth SPEC] [--tune DIR [--sparsity-grid A,B,...] [--prior-grid A,B,...]]`
-//! (the priors and smoothing default to the tracker's defaults).
+//! [--smooth SPEC] [--locator openseeface|mediapipe] [--tune DIR [--sparsity-grid A,B,...]
+//! [--prior-grid A,B,...]]` (the priors and smoothing default to the tracker's defaults,
+//! the locator to OpenSeeFace).
 //!
 //! `--tune DIR` first compares refinement with each weight prior and sparsity of the grids on the
 //! clips in DIR (a seed of their own, `python -m likeness_train.clips --seed 9002`; the
@@ -64,8 +65,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         Some(spec) => spec.parse()?,
         None => tracking::smooth::SmoothingConfig::default(),
     };
+    let locator = match text("--locator") {
+        Some(l) => l.parse()?,
+        None => tracking::pipeline::LocatorChoice::Auto,
+    };
     let mut config = TrackerConfig {
         backend,
+        locator,
         refine: Some(refine.clone()),
         smoothing,
         ..TrackerConfig::default()

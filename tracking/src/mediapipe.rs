@@ -585,3 +585,139 @@ impl MediaPipe {
         Ok((points.data, presence.data[0]))
     }
 }
+
+/// The Face Mesh point standing for each iBUG 68 landmark (jaw 0-16, brows 17-26, nose
+/// 27-35, eyes 36-47, lips 48-67; the subject's right first, as iBUG's). The subset widely
+/// used with MediaPipe's canonical face mesh: jaw points on the mesh's silhouette ring,
+/// eye and lip corners and contour points where iBUG has them.
+pub const MESH_TO_IBUG68: [usize; crate::openseeface::IBUG_LANDMARK_COUNT] = [
+    // jaw, from the right temple to the left
+    162, 234, 93, 58, 172, 136, 149, 148, 152, 377, 378, 365, 397, 288, 323, 454, 389,
+    // right brow, left brow
+    71, 63, 105, 66, 107, 336, 296, 334, 293, 301, // nose bridge, nose bottom
+    168, 197, 5, 4, 75, 97, 2, 326, 305,
+    // right eye, left eye (outer corner first, clockwise on the image)
+    33, 160, 158, 133, 153, 144, 362, 385, 387, 263, 373, 380,
+    // outer lip (corners 48 and 54), inner lip (corners 60 and 64)
+    61, 39, 37, 0, 267, 269, 291, 405, 314, 17, 84, 181, 78, 82, 13, 312, 308, 317, 14, 87,
+];
+
+impl FaceMesh {
+    /// The iBUG 68 landmarks ([`MESH_TO_IBUG68`]), each with the face's presence as its
+    /// confidence (Face Mesh scores the face, not its points).
+    pub fn to_ibug68(&self) -> [Option<(Vec2, f32)>; crate::openseeface::IBUG_LANDMARK_COUNT] {
+        MESH_TO_IBUG68.map(|i| self.points.get(i).map(|p| (p.truncate(), self.presence)))
+    }
+}
+
+/// One frame's result of [`MeshFollower::step`].
+#[derive(Clone, Debug)]
+pub struct MeshFollowResult {
+    pub mesh: FaceMesh,
+    /// Whether the detector ran (first frame, or the face had been lost).
+    pub detected: bool,
+    pub detect_ms: f64,
+    pub mesh_ms: f64,
+}
+
+/// Follows one face through a video as MediaPipe's face-mesh graph does: BlazeFace on the
+/// first frame and whenever the face is lost; otherwise Face Mesh on the crop the previous
+/// frame's points give ([`FaceMesh::next_crop`]), which turns with the head and skips the
+/// detector. The face is lost when the presence falls below the threshold (default
+/// [`DEFAULT_MIN_PRESENCE`]) or the crop's centre leaves the frame. Of several detected
+/// faces it follows the largest, as [`crate::openseeface::largest_face`] argues.
+pub struct MeshFollower {
+    located: MediaPipe,
+    min_presence: f32,
+    previous: Option<RotatedSquare>,
+}
+
+impl MeshFollower {
+    pub fn new(located: MediaPipe) -> Self {
+        Self {
+            located,
+            min_presence: DEFAULT_MIN_PRESENCE,
+            previous: None,
+        }
+    }
+
+    pub fn with_min_presence(mut self, presence: f32) -> Self {
+        self.min_presence = presence;
+        self
+    }
+
+    pub fn located(&self) -> &MediaPipe {
+        &self.located
+    }
+
+    pub fn kind(&self) -> BackendKind {
+        self.located.kind()
+    }
+
+    /// Forgets the face: the next frame starts with a detection.
+    pub fn reset(&mut self) {
+        self.previous = None;
+    }
+
+    /// The face in the next frame, or `None` if the frame shows none.
+    pub fn step(&mut self, image: &RgbImage) -> Result<Option<MeshFollowResult>> {
+        let result = self.follow(image);
+        self.previous = match &result {
+            Ok(Some(found)) => found
+                .mesh
+                .next_crop()
+                .filter(|c| inside(c.centre, image.width(), image.height())),
+            _ => None,
+        };
+        result
+    }
+
+    fn follow(&mut self, image: &RgbImage) -> Result<Option<MeshFollowResult>> {
+        let mut mesh_ms = 0.0;
+        if let Some(crop) = self.previous {
+            let started = web_time::Instant::now();
+            let mesh = self.located.mesh(image, crop)?;
+            mesh_ms += elapsed_ms(started);
+            if mesh.presence >= self.min_presence {
+                return Ok(Some(MeshFollowResult {
+                    mesh,
+                    detected: false,
+                    detect_ms: 0.0,
+                    mesh_ms,
+                }));
+            }
+        }
+        let started = web_time::Instant::now();
+        let detections = self.located.detect(image)?;
+        let detect_ms = elapsed_ms(started);
+        let largest = detections
+            .iter()
+            .filter(|d| inside(d.face_box.centre(), image.width(), image.height()))
+            .max_by(|a, b| {
+                let area = |d: &MeshDetection| d.face_box.width * d.face_box.height;
+                area(a).total_cmp(&area(b))
+            });
+        let Some(detection) = largest else {
+            return Ok(None);
+        };
+        let started = web_time::Instant::now();
+        let mesh = self.located.mesh(image, detection.crop())?;
+        mesh_ms += elapsed_ms(started);
+        Ok(
+            (mesh.presence >= self.min_presence).then_some(MeshFollowResult {
+                mesh,
+                detected: true,
+                detect_ms,
+                mesh_ms,
+            }),
+        )
+    }
+}
+
+fn inside(p: Vec2, width: u32, height: u32) -> bool {
+    (0.0..width as f32).contains(&p.x) && (0.0..height as f32).contains(&p.y)
+}
+
+fn elapsed_ms(started: web_time::Instant) -> f64 {
+    started.elapsed().as_secs_f64() * 1e3
+}

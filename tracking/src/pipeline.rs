@@ -14,6 +14,7 @@ use image::RgbImage;
 
 use crate::backend::{BackendChoice, BackendKind, Tensor};
 use crate::error::{Result, TrackingError};
+use crate::mediapipe::{MediaPipe, MeshFollower};
 use crate::networks::{Manifest, TrackNet, TrackNetOutput, default_networks_dir};
 use crate::openseeface::{FaceFollower, OpenSeeFace, default_models_dir};
 use crate::params::FaceParams;
@@ -34,6 +35,9 @@ pub enum LocatorChoice {
     Auto,
     /// OpenSeeFace detection and landmarks; an error without the models.
     Landmarks,
+    /// MediaPipe's BlazeFace and 468-point Face Mesh ([`crate::mediapipe`]), handing on
+    /// the iBUG 68 subset of its points; an error without the models.
+    MediaPipe,
     /// Every image is already a face crop framed like the training images (synthetic
     /// renders, pre-cropped stills).
     PreCropped,
@@ -44,10 +48,11 @@ impl std::str::FromStr for LocatorChoice {
     fn from_str(s: &str) -> Result<Self> {
         match s {
             "auto" => Ok(Self::Auto),
-            "landmarks" | "detect" => Ok(Self::Landmarks),
+            "landmarks" | "detect" | "openseeface" => Ok(Self::Landmarks),
+            "mediapipe" | "mesh" => Ok(Self::MediaPipe),
             "precropped" | "pre-cropped" | "crop" => Ok(Self::PreCropped),
             other => Err(TrackingError::InvalidInput(format!(
-                "unknown face locator `{other}` (auto, landmarks or precropped)"
+                "unknown face locator `{other}` (auto, openseeface, mediapipe or precropped)"
             ))),
         }
     }
@@ -63,6 +68,8 @@ pub struct TrackerConfig {
     pub networks_dir: PathBuf,
     /// Folder of the OpenSeeFace models.
     pub models_dir: PathBuf,
+    /// Folder of MediaPipe's models ([`LocatorChoice::MediaPipe`]).
+    pub mediapipe_dir: PathBuf,
     pub locator: LocatorChoice,
     /// Horizontal field of view of the footage camera in degrees. Default: 50 for
     /// footage; for pre-cropped input the training cameras' nominal value.
@@ -79,6 +86,7 @@ impl Default for TrackerConfig {
             threads: 2,
             networks_dir: default_networks_dir(),
             models_dir: default_models_dir(),
+            mediapipe_dir: crate::mediapipe::default_models_dir(),
             locator: LocatorChoice::Auto,
             fov_deg: None,
             refine: Some(RefineConfig::default()),
@@ -120,6 +128,7 @@ pub struct FrameOutput {
 
 enum Locator {
     Landmarks(Box<FaceFollower>),
+    Mesh(Box<MeshFollower>),
     PreCropped,
 }
 
@@ -150,6 +159,16 @@ impl LocatedFace {
             confidence: found.landmarks.mean_confidence,
             detect_ms: found.detect_ms,
             landmarks_ms: found.landmarks_ms,
+        }))
+    }
+
+    /// The face [`MeshFollower::step`] found in the next frame of a video, or `None`.
+    pub fn follow_mesh(follower: &mut MeshFollower, image: &RgbImage) -> Result<Option<Self>> {
+        Ok(follower.step(image)?.map(|found| Self {
+            ibug68: Some(Box::new(found.mesh.to_ibug68())),
+            confidence: found.mesh.presence,
+            detect_ms: found.detect_ms,
+            landmarks_ms: found.mesh_ms,
         }))
     }
 
@@ -224,12 +243,15 @@ impl Locator {
         match self {
             Locator::PreCropped => Ok(Some(LocatedFace::pre_cropped())),
             Locator::Landmarks(follower) => LocatedFace::follow(follower, image),
+            Locator::Mesh(follower) => LocatedFace::follow_mesh(follower, image),
         }
     }
 
     fn reset(&mut self) {
-        if let Locator::Landmarks(f) = self {
-            f.reset();
+        match self {
+            Locator::Landmarks(f) => f.reset(),
+            Locator::Mesh(f) => f.reset(),
+            Locator::PreCropped => {}
         }
     }
 }
@@ -290,6 +312,9 @@ impl Tracker {
             LocatorChoice::Landmarks => Locator::Landmarks(Box::new(FaceFollower::new(
                 OpenSeeFace::load(&config.models_dir, kind, config.threads)?,
             ))),
+            LocatorChoice::MediaPipe => Locator::Mesh(Box::new(MeshFollower::new(
+                MediaPipe::load(&config.mediapipe_dir, kind, config.threads)?,
+            ))),
             LocatorChoice::Auto => {
                 match OpenSeeFace::load(&config.models_dir, kind, config.threads) {
                     Ok(models) => Locator::Landmarks(Box::new(FaceFollower::new(models))),
@@ -345,7 +370,7 @@ impl Tracker {
         Ok(Self {
             manifest,
             track_net,
-            footage_camera: matches!(locator, Locator::Landmarks(_)),
+            footage_camera: !matches!(locator, Locator::PreCropped),
             locator,
             face,
             blendshapes,
@@ -362,6 +387,17 @@ impl Tracker {
 
     pub fn uses_landmarks(&self) -> bool {
         self.footage_camera
+    }
+
+    /// What finds the face: "openseeface", "mediapipe" or "precropped" (the tracking
+    /// JSON's settings). Asked while [`Tracker::track_source`] runs, it names the locator
+    /// lent to its worker as "precropped"; ask before or after.
+    pub fn locator_name(&self) -> &'static str {
+        match self.locator {
+            Locator::Landmarks(_) => "openseeface",
+            Locator::Mesh(_) => "mediapipe",
+            Locator::PreCropped => "precropped",
+        }
     }
 
     /// Refinement uses this person's blendshapes from now on (a personalized model).
