@@ -595,3 +595,120 @@ fn face_mesh_matches_mediapipes_own_solution_on_real_photographs() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_correspondence_picks_mesh_points_over_the_templates_landmarks() {
+    use tracking::mediapipe::{CORRESPONDENCE_FILE, IctCorrespondence, MESH_TO_IBUG68};
+    let template = face::Template::load_default(None).expect("the ICT template");
+    let correspondence = IctCorrespondence::load(&default_models_dir()).unwrap();
+    assert_eq!(correspondence.vertices.len(), MESH_POINTS);
+    let points = correspondence.ibug68_points(&template).unwrap();
+    // Each chosen point's ICT vertex is the nearest of the 468 to the landmark vertex (no
+    // other point is nearer, checked by brute force), within 5 mm for the eyes and lips and
+    // 1 cm elsewhere.
+    let at = |v: u32| template.neutral[v as usize];
+    for (k, (&point, &landmark)) in points.iter().zip(&template.landmarks_68).enumerate() {
+        let chosen = at(correspondence.vertices[point]).distance(at(landmark));
+        let best = correspondence
+            .vertices
+            .iter()
+            .map(|&v| at(v).distance(at(landmark)))
+            .fold(f32::INFINITY, f32::min);
+        assert_eq!(chosen, best, "landmark {k}");
+        // Measured: eyes <= 1.9 mm, lips <= 4.2 mm, nose <= 4.9 mm, brows <= 7.4 mm, jaw
+        // <= 9.1 mm (Face Mesh's outline runs along the silhouette, not ICT's jaw line).
+        let bound = if k >= 36 { 0.5 } else { 1.0 };
+        assert!(
+            chosen < bound,
+            "landmark {k}: nearest Face Mesh point {chosen} cm away"
+        );
+    }
+    // It differs from the common subset where the semantics differ (the jaw).
+    assert_ne!(points[..17], MESH_TO_IBUG68[..17]);
+
+    // Bad files are named errors.
+    let dir = std::env::temp_dir().join(format!("likeness-correspondence-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    assert!(matches!(
+        IctCorrespondence::load(&dir),
+        Err(TrackingError::MissingModel { .. })
+    ));
+    for (bytes, expect) in [
+        (&b"not json"[..], "not the correspondence file"),
+        (
+            &br#"{"mediapipe_to_ict_vertex": [1, 2, 3]}"#[..],
+            "has 3 entries",
+        ),
+    ] {
+        std::fs::write(dir.join(CORRESPONDENCE_FILE), bytes).unwrap();
+        match IctCorrespondence::load(&dir) {
+            Err(TrackingError::Decode { reason, .. }) => {
+                assert!(reason.contains(expect), "{reason}")
+            }
+            other => panic!("expected a decode error, got {other:?}"),
+        }
+    }
+    let outside = IctCorrespondence {
+        vertices: vec![u32::MAX; MESH_POINTS],
+    };
+    assert!(matches!(
+        outside.ibug68_points(&template),
+        Err(TrackingError::InvalidInput(_))
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_follower_finds_the_face_as_it_moves_loses_it_and_finds_it_again() {
+    use tracking::mediapipe::{MESH_TO_IBUG68, MeshFollower};
+    let mut follower = MeshFollower::new(load(BackendKind::Tract), MESH_TO_IBUG68);
+    let grey = RgbImage::from_pixel(640, 480, Rgb([128, 128, 128]));
+    let mut offsets: Vec<Option<(u32, u32)>> =
+        (0..6).map(|k| Some((200 + 12 * k, 150 + 4 * k))).collect();
+    offsets.extend([None, None, Some((100, 120)), Some((108, 122))]);
+    for (frame, offset) in offsets.iter().enumerate() {
+        let image = offset.map_or_else(|| grey.clone(), frame_with_face);
+        let found = follower.step(&image).unwrap();
+        match offset {
+            None => assert!(found.is_none(), "frame {frame}: a face in a grey frame"),
+            Some(offset) => {
+                let found =
+                    found.unwrap_or_else(|| panic!("frame {frame}: the face was not found"));
+                assert!(
+                    found.detected,
+                    "frame {frame}: the detector finds this face"
+                );
+                let marked = features_at(*offset);
+                let eye_distance = (marked[1] - marked[0]).length();
+                // The eye marks are the sharp ones (see `finds_the_real_face`).
+                for (got, mark) in mesh_features(&found.mesh).into_iter().zip(marked).take(2) {
+                    assert!(
+                        (got - mark).length() < 0.1 * eye_distance,
+                        "frame {frame}: {got} vs {mark}"
+                    );
+                }
+                let ibug = found.mesh.to_ibug68(follower.ibug68());
+                assert!(
+                    ibug.iter()
+                        .all(|p| p.is_some_and(|(p, c)| p.is_finite() && c > 0.9))
+                );
+            }
+        }
+    }
+    // Two faces: the larger is followed.
+    let mut two = frame_with_face((380, 200));
+    let small = image::imageops::resize(
+        &real_crop(),
+        112,
+        112,
+        image::imageops::FilterType::Triangle,
+    );
+    image::imageops::replace(&mut two, &small, 40, 40);
+    follower.reset();
+    let found = follower.step(&two).unwrap().expect("a face");
+    let centre = found.mesh.points[1].truncate();
+    assert!(
+        centre.x > 380.0 && centre.y > 200.0,
+        "followed the small face: nose at {centre}"
+    );
+}
