@@ -1,6 +1,7 @@
 //! The tracking pipeline's latency per stage and end-to-end frame rate on a 640x480 clip
-//! (decoded from an H.264 file by ffmpeg), ONNX Runtime against tract in one run, and
-//! ModelNet for N = 1, 4, 8. Prints Markdown tables.
+//! (decoded from an H.264 file by ffmpeg), OpenSeeFace against MediaPipe as the face
+//! locator and ONNX Runtime against tract, all in one run, and ModelNet for N = 1, 4, 8.
+//! Prints Markdown tables.
 //!
 //! `cargo bench -p tracking --bench pipeline` (the clip comes from
 //! `python -m likeness_train.clips`, which training/setup.sh runs; LIKENESS_CLIPS overrides
@@ -17,7 +18,7 @@ use tracking::backend::{BackendChoice, BackendKind, onnxruntime_status};
 use tracking::evaluate::{Clip, default_clips_dir};
 use tracking::networks::{Manifest, ModelNet, default_networks_dir};
 use tracking::personalize::stack;
-use tracking::pipeline::{StageTimes, TrackEvent, Tracker, TrackerConfig};
+use tracking::pipeline::{LocatorChoice, StageTimes, TrackEvent, Tracker, TrackerConfig};
 use tracking::preprocess::{Rect, sample_rect};
 use tracking::source::{FfmpegSource, FrameSource, Next, read_image};
 
@@ -64,10 +65,12 @@ fn footage_tracker(
     clip: &Clip,
     kind: BackendKind,
     threads: usize,
+    locator: LocatorChoice,
 ) -> Result<Tracker, String> {
     let config = TrackerConfig {
         backend: BackendChoice::Only(kind),
         threads,
+        locator,
         fov_deg: Some(clip.fov_deg()),
         ..TrackerConfig::default()
     };
@@ -80,9 +83,10 @@ fn run_pipeline(
     clip: &Clip,
     kind: BackendKind,
     threads: usize,
+    locator: LocatorChoice,
     limit: usize,
 ) -> Result<Row, String> {
-    let mut tracker = footage_tracker(face, clip, kind, threads)?;
+    let mut tracker = footage_tracker(face, clip, kind, threads, locator)?;
     let mut row = Row {
         backend: kind,
         decode: vec![],
@@ -125,9 +129,10 @@ fn run_pipelined(
     clip: &Clip,
     kind: BackendKind,
     threads: usize,
+    locator: LocatorChoice,
     limit: usize,
 ) -> Result<(usize, f64), String> {
-    let mut tracker = footage_tracker(face, clip, kind, threads)?;
+    let mut tracker = footage_tracker(face, clip, kind, threads, locator)?;
     let mut intervals = Vec::new();
     let mut frames = 0usize;
     for pass in 0..4 {
@@ -204,9 +209,13 @@ fn main() {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
     println!(
-        "| backend | decode | detect | landmarks | crop | TrackNet | refinement | smoothing | end to end | fps (1000 / mean) | frames with a face |"
+        "| locator | backend | decode | detect | landmarks | crop | TrackNet | refinement | smoothing | end to end | fps (1000 / mean) | frames with a face |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    const LOCATORS: [(LocatorChoice, &str); 2] = [
+        (LocatorChoice::Landmarks, "OpenSeeFace"),
+        (LocatorChoice::MediaPipe, "MediaPipe"),
+    ];
     let mut runs: Vec<(BackendKind, usize)> = kinds
         .iter()
         .map(|&k| (k, if k == BackendKind::Tract { 1 } else { 2 }))
@@ -214,13 +223,16 @@ fn main() {
     if kinds.contains(&BackendKind::OnnxRuntime) {
         runs.insert(1, (BackendKind::OnnxRuntime, 1));
     }
-    for (kind, threads) in runs.iter().copied() {
-        match run_pipeline(&face, &video, &clip, kind, threads, limit) {
+    for ((kind, threads), (locator, locator_name)) in LOCATORS
+        .iter()
+        .flat_map(|l| runs.iter().map(move |r| (*r, *l)))
+    {
+        match run_pipeline(&face, &video, &clip, kind, threads, locator, limit) {
             Ok(r) => {
                 let col = |f: fn(&StageTimes) -> f64| median(r.stages.iter().map(f).collect());
                 let mean_total = r.total.iter().sum::<f64>() / r.total.len().max(1) as f64;
                 println!(
-                    "| {} ({} thread{}) | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2} | {:.0} | {}/{} |",
+                    "| {locator_name} | {} ({} thread{}) | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2} | {:.0} | {}/{} |",
                     r.backend,
                     if kind == BackendKind::Tract {
                         1
@@ -246,7 +258,7 @@ fn main() {
                 );
             }
             Err(e) => {
-                println!("| {kind} | failed: {e} |");
+                println!("| {locator_name} | {kind} | failed: {e} |");
                 std::process::exit(1);
             }
         }
@@ -255,28 +267,33 @@ fn main() {
         "\n## Pipelined (`Tracker::track_source`: decode and landmarks on one thread, crop, TrackNet, refinement and smoothing on another)\n"
     );
     println!(
-        "| backend | frames | ms per frame (steady state, median of 3 passes) | fps |\n|---|---|---|---|"
+        "| locator | backend | frames | ms per frame (steady state, median of 3 passes) | fps |\n|---|---|---|---|---|"
     );
-    for (kind, threads) in runs.iter().copied() {
-        match run_pipelined(&face, &video, &clip, kind, threads, limit) {
+    for ((kind, threads), (locator, locator_name)) in LOCATORS
+        .iter()
+        .flat_map(|l| runs.iter().map(move |r| (*r, *l)))
+    {
+        match run_pipelined(&face, &video, &clip, kind, threads, locator, limit) {
             Ok((frames, interval_ms)) => println!(
-                "| {kind} ({threads} thread{}) | {frames} | {interval_ms:.2} | {:.0} |",
+                "| {locator_name} | {kind} ({threads} thread{}) | {frames} | {interval_ms:.2} | {:.0} |",
                 if threads > 1 { "s" } else { "" },
                 1000.0 / interval_ms
             ),
             Err(e) => {
-                println!("| {kind} | failed: {e} |");
+                println!("| {locator_name} | {kind} | failed: {e} |");
                 std::process::exit(1);
             }
         }
     }
     println!(
-        "\n(detect runs only when the face is lost; its median over all frames is 0 when the follower keeps the face. Its cost when it runs:)\n"
+        "\n(OpenSeeFace's detector runs only when the face is lost, so its median over all frames is 0 while the follower keeps the face; MediaPipe's BlazeFace runs on every frame. Each detector's cost when it runs:)\n"
     );
     // The detector alone, on the first frame.
     let first = read_image(&clip.frames[0]);
     if let Ok(image) = &first {
-        println!("| backend | detector (ms, median of 10) |\n|---|---|");
+        println!(
+            "| backend | OpenSeeFace detector | BlazeFace (ms, median of 10) |\n|---|---|---|"
+        );
         for &kind in &kinds {
             let mut models = match tracking::openseeface::OpenSeeFace::load(
                 &tracking::openseeface::default_models_dir(),
@@ -297,7 +314,25 @@ fn main() {
                 })
                 .skip(1)
                 .collect();
-            println!("| {kind} | {:.2} |", median(times));
+            let blazeface = match tracking::mediapipe::MediaPipe::load(
+                &tracking::mediapipe::default_models_dir(),
+                kind,
+                2,
+            ) {
+                Ok(mut m) => {
+                    let times: Vec<f64> = (0..11)
+                        .map(|_| {
+                            let t = Instant::now();
+                            let _ = m.detect(image);
+                            t.elapsed().as_secs_f64() * 1e3
+                        })
+                        .skip(1)
+                        .collect();
+                    format!("{:.2}", median(times))
+                }
+                Err(e) => e.to_string(),
+            };
+            println!("| {kind} | {:.2} | {blazeface} |", median(times));
         }
     }
     // ModelNet for N = 1, 4, 8.
