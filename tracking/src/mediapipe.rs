@@ -758,6 +758,11 @@ impl MeshFollower {
         self
     }
 
+    /// The presence below which a followed face counts as lost.
+    pub fn min_presence(&self) -> f32 {
+        self.min_presence
+    }
+
     pub fn located(&self) -> &MediaPipe {
         &self.located
     }

@@ -247,6 +247,30 @@ impl Locator {
         }
     }
 
+    /// What "no face" means for this locator, with its thresholds.
+    fn no_face_note(&self) -> String {
+        match self {
+            Locator::Landmarks(f) => format!(
+                "no face found: OpenSeeFace's detector found none at confidence >= {} (and a \
+                 face followed from the previous frame, if any, was lost: its landmarks' mean \
+                 confidence fell below {}); a face much smaller than a tenth of the frame, \
+                 turned past profile or filling the whole frame can be missed (--locator \
+                 mediapipe finds close-ups)",
+                f.tracker().detection_threshold(),
+                f.min_landmark_confidence()
+            ),
+            Locator::Mesh(f) => format!(
+                "no face found: MediaPipe's BlazeFace found none scoring >= {} (and a face \
+                 followed from the previous frame, if any, was lost: Face Mesh's presence fell \
+                 below {}); BlazeFace's short-range model finds faces within about 2 m of the \
+                 camera, so a face much smaller than a tenth of the frame can be missed",
+                f.located().min_detection_score(),
+                f.min_presence()
+            ),
+            Locator::PreCropped => "no face: the image is taken as a face crop".into(),
+        }
+    }
+
     fn reset(&mut self) {
         match self {
             Locator::Landmarks(f) => f.reset(),
@@ -284,6 +308,9 @@ pub struct Tracker {
     /// footage's), kept apart from `locator` because that is lent to a worker thread in
     /// [`Tracker::track_source`].
     footage_camera: bool,
+    /// Why a frame has no face, for its record (issue 32: every `"face": false` says why);
+    /// worded for the locator this tracker was built with.
+    no_face_note: String,
     face: Arc<FaceModel>,
     blendshapes: Arc<PersonalizedBlendshapes>,
     /// The landmark rows of `blendshapes`, gathered once per person.
@@ -378,6 +405,7 @@ impl Tracker {
             manifest,
             track_net,
             footage_camera: !matches!(locator, Locator::PreCropped),
+            no_face_note: locator.no_face_note(),
             locator,
             face,
             blendshapes,
@@ -500,7 +528,11 @@ impl Tracker {
     ) -> Result<FrameOutput> {
         let Some(located) = located else {
             self.smoother.reset();
-            return Ok(FrameOutput::none(FrameRecord::no_face(index, time_s, None)));
+            return Ok(FrameOutput::none(FrameRecord::no_face(
+                index,
+                time_s,
+                Some(self.no_face_note.clone()),
+            )));
         };
         let mut times = StageTimes {
             detect_ms: located.detect_ms,

@@ -435,3 +435,51 @@ fn the_default_refinement_never_raises_the_held_out_expression_error() {
         refined.landmark_nme
     );
 }
+
+/// Issue 32: a frame without a face says why, in the locator's terms; the same tracker
+/// then finds the real face (the MediaPipe locator also in the 224 px close-up, which
+/// OpenSeeFace's detector misses, and that miss is explained too).
+#[test]
+fn every_frame_without_a_face_says_why() {
+    let grey = image::RgbImage::from_pixel(640, 480, image::Rgb([128, 128, 128]));
+    let close_up =
+        image::open(common::repo().join("../shared/testdata/faces/openseeface-raw1.png"))
+            .expect("the real crop")
+            .to_rgb8();
+    for (locator, name) in [
+        (LocatorChoice::Landmarks, "OpenSeeFace"),
+        (LocatorChoice::MediaPipe, "BlazeFace"),
+    ] {
+        let config = TrackerConfig {
+            backend: BackendChoice::Only(BackendKind::Tract),
+            locator,
+            ..TrackerConfig::default()
+        };
+        let mut tracker = Tracker::new(face_model(), config, true).unwrap();
+        let frame = |index: usize, image: &image::RgbImage| tracking::source::Frame {
+            index,
+            time_s: index as f64 / 30.0,
+            image: image.clone(),
+            path: None,
+        };
+        let out = tracker.process(&frame(0, &grey));
+        assert!(!out.record.face);
+        let note = out.record.note.clone().unwrap_or_default();
+        assert!(
+            note.starts_with("no face found") && note.contains(name),
+            "{locator:?}: {note}"
+        );
+        let out = tracker.process(&frame(1, &close_up));
+        match locator {
+            LocatorChoice::MediaPipe => assert!(out.record.face, "{:?}", out.record.note),
+            _ => assert!(
+                !out.record.face
+                    && out
+                        .record
+                        .note
+                        .is_some_and(|n| n.contains("--locator mediapipe")),
+                "OpenSeeFace on the close-up"
+            ),
+        }
+    }
+}
