@@ -279,7 +279,7 @@ fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
 
-/// The detections in the detector's raw outputs (`regressors` [896 x 16], `logits` [896])
+/// The detections in the detector's raw outputs (`regressors`, 896 x 16, and `logits`, 896)
 /// scoring at least `min_score`, in [0, 1] of its input, before suppression; MediaPipe's
 /// `TensorsToDetectionsCalculator` (x first, every value in input pixels relative to its
 /// anchor's centre).
@@ -542,7 +542,7 @@ impl MediaPipe {
         })
     }
 
-    /// The detector's `regressors` [896 x 16] and `classificators` [896], checked.
+    /// The detector's `regressors` (896 x 16) and `classificators` (896), checked.
     fn run_detector(&mut self, input: &Tensor) -> Result<(Vec<f32>, Vec<f32>)> {
         let mut outputs = self.detector.run(input)?.into_iter();
         let (Some(regressors), Some(logits)) = (outputs.next(), outputs.next()) else {
