@@ -7,7 +7,7 @@
 //!
 //! `cargo run --release -p tracking --example evaluate [-- --backend tract]
 //! [--weight-prior X] [--weight-sparsity X] [--rotation-prior X] [--translation-prior X]
-//! [--smooth SPEC] [--locator openseeface|mediapipe] [--tune DIR [--sparsity-grid A,B,...]
+//! [--smooth SPEC] [--locator openseeface|mediapipe [--no-dense]] [--tune DIR [--sparsity-grid A,B,...]
 //! [--prior-grid A,B,...]]` (the priors and smoothing default to the tracker's defaults,
 //! the locator to OpenSeeFace).
 //!
@@ -72,6 +72,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut config = TrackerConfig {
         backend,
         locator,
+        dense_fit: !args.iter().any(|a| a == "--no-dense"),
         refine: Some(refine.clone()),
         smoothing,
         ..TrackerConfig::default()

@@ -617,6 +617,13 @@ impl FaceMesh {
     }
 }
 
+/// Face Mesh's face oval, in order around the face: the points on the silhouette, which
+/// slide over the surface as the head turns (a contour chain for refinement).
+pub const FACE_OVAL: [usize; 36] = [
+    10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152,
+    148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109,
+];
+
 /// The file beside the models that says which ICT vertex lies under each Face Mesh point.
 pub const CORRESPONDENCE_FILE: &str = "ict_correspondence.json";
 
@@ -664,6 +671,14 @@ impl IctCorrespondence {
         Ok(Self {
             vertices: file.mediapipe_to_ict_vertex,
         })
+    }
+
+    /// All 468 points for refinement: their ICT vertices, the face oval as the one contour.
+    pub fn fit_points(&self) -> crate::refine::FitPoints {
+        crate::refine::FitPoints {
+            vertices: self.vertices.clone(),
+            contours: vec![FACE_OVAL.to_vec()],
+        }
     }
 
     /// For each of the template's 68 landmark vertices, the Face Mesh point whose ICT

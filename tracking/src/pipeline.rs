@@ -20,7 +20,7 @@ use crate::openseeface::{FaceFollower, OpenSeeFace, default_models_dir};
 use crate::params::FaceParams;
 use crate::preprocess::{Rect, sample_rect};
 use crate::record::{CameraRecord, FrameRecord};
-use crate::refine::{LandmarkObservations, RefineConfig, Refiner};
+use crate::refine::{FitPoints, LandmarkObservations, RefineConfig, Refiner};
 use crate::smooth::{FaceParamsSmoother, SmoothingConfig};
 use crate::source::{Frame, FrameError, FrameSource, Next};
 
@@ -70,6 +70,9 @@ pub struct TrackerConfig {
     pub models_dir: PathBuf,
     /// Folder of MediaPipe's models ([`LocatorChoice::MediaPipe`]).
     pub mediapipe_dir: PathBuf,
+    /// With [`LocatorChoice::MediaPipe`]: refinement fits all 468 Face Mesh points through
+    /// their ICT correspondence (`true`) or the 68 handed on as iBUG landmarks (`false`).
+    pub dense_fit: bool,
     pub locator: LocatorChoice,
     /// Horizontal field of view of the footage camera in degrees. Default: 50 for
     /// footage; for pre-cropped input the training cameras' nominal value.
@@ -87,6 +90,7 @@ impl Default for TrackerConfig {
             networks_dir: default_networks_dir(),
             models_dir: default_models_dir(),
             mediapipe_dir: crate::mediapipe::default_models_dir(),
+            dense_fit: true,
             locator: LocatorChoice::Auto,
             fov_deg: None,
             refine: Some(RefineConfig::default()),
@@ -120,8 +124,11 @@ pub struct FrameOutput {
     pub tracknet: Option<FaceParams>,
     /// After refinement, before smoothing.
     pub refined: Option<FaceParams>,
-    /// The landmark observations refinement used.
+    /// The landmark observations refinement used (the 68 iBUG points).
     pub observations: Option<LandmarkObservations>,
+    /// A dense detector's points (indices into Face Mesh's 468), which refinement fits
+    /// instead of `observations` when the tracker has their correspondence.
+    pub dense_observations: Option<LandmarkObservations>,
     pub confidence: f32,
     pub times: StageTimes,
 }
@@ -139,6 +146,9 @@ enum Locator {
 pub struct LocatedFace {
     /// The detected landmarks in iBUG order; `None` for a pre-cropped image.
     ibug68: Option<Box<Ibug68>>,
+    /// A dense detector's points (Face Mesh's 468) with their confidence, which
+    /// refinement fits through the template correspondence when the tracker has it.
+    dense: Option<Vec<(Vec2, f32)>>,
     confidence: f32,
     detect_ms: f64,
     landmarks_ms: f64,
@@ -148,14 +158,19 @@ pub struct LocatedFace {
 type Ibug68 = [Option<(Vec2, f32)>; crate::openseeface::IBUG_LANDMARK_COUNT];
 
 /// Length of [`LocatedFace::to_f32s`]: a header of four numbers, then x, y and confidence
-/// of each iBUG landmark.
-pub const LOCATED_FACE_F32S: usize = 4 + 3 * crate::openseeface::IBUG_LANDMARK_COUNT;
+/// of each iBUG landmark, then of each dense point (NaN when there are none).
+pub const LOCATED_FACE_F32S: usize =
+    4 + 3 * crate::openseeface::IBUG_LANDMARK_COUNT + 3 * crate::mediapipe::MESH_POINTS;
+
+/// Where the dense points start in [`LocatedFace::to_f32s`].
+const DENSE_START: usize = 4 + 3 * crate::openseeface::IBUG_LANDMARK_COUNT;
 
 impl LocatedFace {
     /// The face [`FaceFollower::step`] found in the next frame of a video, or `None`.
     pub fn follow(follower: &mut FaceFollower, image: &RgbImage) -> Result<Option<Self>> {
         Ok(follower.step(image)?.map(|found| Self {
             ibug68: Some(Box::new(found.landmarks.to_ibug68())),
+            dense: None,
             confidence: found.landmarks.mean_confidence,
             detect_ms: found.detect_ms,
             landmarks_ms: found.landmarks_ms,
@@ -166,6 +181,13 @@ impl LocatedFace {
     pub fn follow_mesh(follower: &mut MeshFollower, image: &RgbImage) -> Result<Option<Self>> {
         Ok(follower.step(image)?.map(|found| Self {
             ibug68: Some(Box::new(found.mesh.to_ibug68(follower.ibug68()))),
+            dense: Some(
+                found
+                    .mesh
+                    .points_2d()
+                    .map(|p| (p, found.mesh.presence))
+                    .collect(),
+            ),
             confidence: found.mesh.presence,
             detect_ms: found.detect_ms,
             landmarks_ms: found.mesh_ms,
@@ -175,6 +197,7 @@ impl LocatedFace {
     fn pre_cropped() -> Self {
         Self {
             ibug68: None,
+            dense: None,
             confidence: 1.0,
             detect_ms: 0.0,
             landmarks_ms: 0.0,
@@ -197,6 +220,10 @@ impl LocatedFace {
                 None => out.extend([f32::NAN; 3]),
             }
         }
+        out.resize(DENSE_START, f32::NAN);
+        for (p, c) in self.dense.iter().flat_map(|points| points.iter()) {
+            out.extend([p.x, p.y, *c]);
+        }
         out.resize(LOCATED_FACE_F32S, f32::NAN);
         out
     }
@@ -211,7 +238,8 @@ impl LocatedFace {
                 values.len()
             )));
         }
-        let (header, points) = values.split_at(4);
+        let (header, rest) = values.split_at(4);
+        let (points, dense_values) = rest.split_at(DENSE_START - 4);
         if header.iter().any(|v| !v.is_finite()) || !(header[0] == 0.0 || header[0] == 1.0) {
             return Err(bad(format!("header {header:?}")));
         }
@@ -228,8 +256,28 @@ impl LocatedFace {
         } else {
             None
         };
+        let found = dense_values
+            .chunks_exact(3)
+            .filter(|xyc| xyc.iter().all(|v| v.is_finite()))
+            .count();
+        let dense = match found {
+            0 if dense_values.iter().all(|v| v.is_nan()) => None,
+            crate::mediapipe::MESH_POINTS => Some(
+                dense_values
+                    .chunks_exact(3)
+                    .map(|xyc| (Vec2::new(xyc[0], xyc[1]), xyc[2]))
+                    .collect(),
+            ),
+            _ => {
+                return Err(bad(format!(
+                    "{found} of the {} dense points are finite",
+                    crate::mediapipe::MESH_POINTS
+                )));
+            }
+        };
         Ok(Self {
             ibug68,
+            dense,
             confidence: header[1],
             detect_ms: f64::from(header[2]),
             landmarks_ms: f64::from(header[3]),
@@ -315,6 +363,9 @@ pub struct Tracker {
     blendshapes: Arc<PersonalizedBlendshapes>,
     /// The landmark rows of `blendshapes`, gathered once per person.
     refiner: Refiner,
+    /// The rows of a dense detector's points (Face Mesh's through the ICT correspondence),
+    /// with the points they were gathered for.
+    dense: Option<(FitPoints, Refiner)>,
     config: TrackerConfig,
     smoother: FaceParamsSmoother,
     last_time_s: Option<f64>,
@@ -334,6 +385,7 @@ impl Tracker {
         let kind = config.backend.resolve()?;
         let manifest = Manifest::load(&config.networks_dir)?;
         let track_net = TrackNet::load(&manifest, kind, config.threads)?;
+        let mut dense_points = None;
         let locator = match config.locator {
             LocatorChoice::PreCropped => Locator::PreCropped,
             LocatorChoice::Landmarks => Locator::Landmarks(Box::new(FaceFollower::new(
@@ -342,8 +394,11 @@ impl Tracker {
             LocatorChoice::MediaPipe => {
                 // The points over the template's own landmark vertices, not the common
                 // subset: 3.89 against 4.28 % NME on the held-out clips (tracking/README.md).
-                let points = IctCorrespondence::load(&config.mediapipe_dir)?
-                    .ibug68_points(&face.template)?;
+                let correspondence = IctCorrespondence::load(&config.mediapipe_dir)?;
+                let points = correspondence.ibug68_points(&face.template)?;
+                if config.dense_fit {
+                    dense_points = Some(correspondence.fit_points());
+                }
                 Locator::Mesh(Box::new(MeshFollower::new(
                     MediaPipe::load(&config.mediapipe_dir, kind, config.threads)?,
                     points,
@@ -371,7 +426,7 @@ impl Tracker {
                 }
             }
         };
-        Self::assemble(face, config, manifest, track_net, locator)
+        Self::assemble(face, config, manifest, track_net, locator, dense_points)
     }
 
     /// A tracker from networks already loaded (the browser reads them from fetched bytes):
@@ -388,7 +443,7 @@ impl Tracker {
             Some(follower) => Locator::Landmarks(Box::new(follower)),
             None => Locator::PreCropped,
         };
-        Self::assemble(face, config, manifest, track_net, locator)
+        Self::assemble(face, config, manifest, track_net, locator, None)
     }
 
     fn assemble(
@@ -397,9 +452,17 @@ impl Tracker {
         manifest: Manifest,
         track_net: TrackNet,
         locator: Locator,
+        dense_points: Option<FitPoints>,
     ) -> Result<Self> {
         let blendshapes = Arc::new(face.template_blendshapes());
         let refiner = Refiner::new(&blendshapes, &face.template)?;
+        let dense = match dense_points {
+            Some(points) => {
+                let refiner = Refiner::with_points(&blendshapes, &points)?;
+                Some((points, refiner))
+            }
+            None => None,
+        };
         let smoother = FaceParamsSmoother::new(config.smoothing.clone());
         Ok(Self {
             manifest,
@@ -410,6 +473,7 @@ impl Tracker {
             face,
             blendshapes,
             refiner,
+            dense,
             config,
             smoother,
             last_time_s: None,
@@ -438,6 +502,9 @@ impl Tracker {
     /// Refinement uses this person's blendshapes from now on (a personalized model).
     pub fn set_blendshapes(&mut self, blendshapes: Arc<PersonalizedBlendshapes>) -> Result<()> {
         self.refiner = Refiner::new(&blendshapes, &self.face.template)?;
+        if let Some((points, refiner)) = &mut self.dense {
+            *refiner = Refiner::with_points(&blendshapes, points)?;
+        }
         self.blendshapes = blendshapes;
         Ok(())
     }
@@ -557,6 +624,16 @@ impl Tracker {
                 (crop, Some(observations), located.confidence)
             }
         };
+        let dense_observations = match (&self.dense, located.dense) {
+            (Some(_), Some(points)) => {
+                let mut observations = LandmarkObservations::new();
+                for (k, (p, c)) in points.iter().enumerate() {
+                    observations.push(k, *p, *c);
+                }
+                Some(observations)
+            }
+            _ => None,
+        };
         // The crop, as in training.
         let t = Instant::now();
         let s = self.manifest.input_size;
@@ -579,7 +656,7 @@ impl Tracker {
             index,
             time_s,
             &tracknet,
-            observations.as_ref(),
+            (observations.as_ref(), dense_observations.as_ref()),
             &intrinsics,
             confidence,
             &mut times,
@@ -591,6 +668,7 @@ impl Tracker {
             tracknet: Some(tracknet),
             refined: Some(refined),
             observations,
+            dense_observations,
             confidence,
             times,
         })
@@ -688,7 +766,7 @@ impl Tracker {
             index,
             time_s,
             &tracknet,
-            out.observations.as_ref(),
+            (out.observations.as_ref(), out.dense_observations.as_ref()),
             &intrinsics,
             out.confidence,
             &mut times,
@@ -710,14 +788,25 @@ impl Tracker {
         index: usize,
         time_s: f64,
         tracknet: &FaceParams,
-        observations: Option<&LandmarkObservations>,
+        (observations, dense_observations): (
+            Option<&LandmarkObservations>,
+            Option<&LandmarkObservations>,
+        ),
         intrinsics: &Intrinsics,
         confidence: f32,
         times: &mut StageTimes,
     ) -> Result<(FaceParams, FrameRecord)> {
         let t = Instant::now();
-        let refined = match (&self.config.refine, observations) {
-            (Some(config), Some(obs)) => {
+        let refined = match (
+            &self.config.refine,
+            &self.dense,
+            dense_observations,
+            observations,
+        ) {
+            (Some(config), Some((_, dense)), Some(obs), _) => {
+                dense.refine(intrinsics, tracknet, obs, config)?.params
+            }
+            (Some(config), _, _, Some(obs)) => {
                 self.refiner
                     .refine(intrinsics, tracknet, obs, config)?
                     .params
@@ -775,6 +864,7 @@ impl FrameOutput {
             tracknet: None,
             refined: None,
             observations: None,
+            dense_observations: None,
             confidence: 0.0,
             times: StageTimes::default(),
         }
@@ -795,6 +885,11 @@ mod tests {
         }
         LocatedFace {
             ibug68: Some(Box::new(ibug)),
+            dense: Some(
+                (0..crate::mediapipe::MESH_POINTS)
+                    .map(|k| (Vec2::new(k as f32, 0.5 * k as f32), 0.9))
+                    .collect(),
+            ),
             confidence: 0.75,
             detect_ms: 2.5,
             landmarks_ms: 20.0,
@@ -825,9 +920,13 @@ mod tests {
         let mut bad_flag = good.clone();
         bad_flag[0] = 0.5;
         cases.push(bad_flag);
-        let mut nan_confidence = good;
+        let mut nan_confidence = good.clone();
         nan_confidence[1] = f32::NAN;
         cases.push(nan_confidence);
+        // Dense points come whole or not at all.
+        let mut half_dense = good;
+        half_dense[DENSE_START + 3 * 100] = f32::NAN;
+        cases.push(half_dense);
         for case in cases {
             let error = LocatedFace::from_f32s(&case).expect_err("refused");
             assert!(
