@@ -1341,3 +1341,46 @@ fn hostile_puppets_dropped_on_the_studio_are_toasts_and_the_studio_goes_on() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// File > Face locator picks MediaPipe for footage opened from then on (issue 32), and the
+/// real 224 px close-up, which OpenSeeFace's detector misses, is then found and tracked.
+#[test]
+fn the_face_locator_menu_picks_mediapipe_which_finds_a_close_up() {
+    use likeness::settings::FaceLocator;
+    let mut harness = session_harness();
+    assert_eq!(
+        harness.state().settings.face_locator,
+        FaceLocator::OpenSeeFace
+    );
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Face locator").click();
+    harness.run_steps(2);
+    harness.get_by_label(FaceLocator::MediaPipe.label()).click();
+    harness.run_steps(2);
+    assert_eq!(
+        harness.state().settings.face_locator,
+        FaceLocator::MediaPipe
+    );
+
+    let close_up = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/testdata/faces/openseeface-raw1.png");
+    harness
+        .input_mut()
+        .dropped_files
+        .push(Arc::new(DroppedPath(close_up)));
+    harness.step();
+    assert!(
+        harness.state().job().is_some(),
+        "a dropped image starts a job"
+    );
+    run_until_job_ends(&mut harness);
+    assert!(
+        harness.state().state.notices.latest_error().is_none(),
+        "{:?}",
+        harness.state().state.notices.latest_error()
+    );
+    let session = harness.state().session().expect("a session").clone();
+    assert_eq!(session.frame_count(), 1);
+    assert!(session.records[0].face, "{:?}", session.records[0].note);
+}

@@ -23,6 +23,8 @@ pub struct FootageRequest {
     pub max_frames: usize,
     /// How many frames ModelNet personalizes from.
     pub personalize_frames: usize,
+    /// What finds the face (File > Face locator).
+    pub locator: tracking::pipeline::LocatorChoice,
 }
 
 impl FootageRequest {
@@ -31,6 +33,7 @@ impl FootageRequest {
             input: input.into(),
             max_frames: 600,
             personalize_frames: 8,
+            locator: tracking::pipeline::LocatorChoice::Landmarks,
         }
     }
 }
@@ -89,12 +92,20 @@ mod native {
         let face = Arc::new(FaceModel::new(scene.model.template.clone()));
         let config = TrackerConfig {
             threads: 1,
+            locator: request.locator,
             ..TrackerConfig::default()
         };
         // Anything a user opens may be real footage: without the landmark models that is an
         // error naming them, never every image silently taken as a face crop.
-        let mut tracker = Tracker::new(face.clone(), config, true)
-            .context("tracking needs the networks and the OpenSeeFace models")?;
+        let mut tracker = Tracker::new(face.clone(), config, true).with_context(|| {
+            format!(
+                "tracking needs the networks and the {} models",
+                match request.locator {
+                    tracking::pipeline::LocatorChoice::MediaPipe => "MediaPipe",
+                    _ => "OpenSeeFace",
+                }
+            )
+        })?;
         let mut source = spec
             // Images have no frame rate of their own: they play at 30 fps.
             .open(30.0)

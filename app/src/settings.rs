@@ -28,6 +28,33 @@ impl RecentFile {
     }
 }
 
+/// What finds the face in footage the studio opens (File > Face locator).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FaceLocator {
+    /// OpenSeeFace's detector and 66 landmarks.
+    #[default]
+    OpenSeeFace,
+    /// MediaPipe's BlazeFace and 468-point Face Mesh (finds close-ups; refinement fits all
+    /// 468 points).
+    MediaPipe,
+}
+
+impl FaceLocator {
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::OpenSeeFace => "OpenSeeFace (66 points)",
+            Self::MediaPipe => "MediaPipe Face Mesh (468 points)",
+        }
+    }
+
+    pub fn choice(self) -> tracking::pipeline::LocatorChoice {
+        match self {
+            Self::OpenSeeFace => tracking::pipeline::LocatorChoice::Landmarks,
+            Self::MediaPipe => tracking::pipeline::LocatorChoice::MediaPipe,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct Settings {
@@ -46,6 +73,8 @@ pub struct Settings {
     /// Render the puppet view at half size while a clip plays; `None` chooses by the
     /// adapter (on for a software rasteriser, where its cost grows with the pixels filled).
     pub reduce_3d_while_playing: Option<bool>,
+    /// What finds the face in footage opened from now on.
+    pub face_locator: FaceLocator,
 }
 
 impl Default for Settings {
@@ -60,6 +89,7 @@ impl Default for Settings {
             puppet: None,
             smooth_edges: None,
             reduce_3d_while_playing: None,
+            face_locator: FaceLocator::default(),
         }
     }
 }
@@ -153,6 +183,13 @@ mod tests {
         let partial: Settings = serde_json::from_str(r#"{"export_dir":"out"}"#).unwrap();
         assert_eq!(partial.export_dir, "out");
         assert_eq!(partial.overlay_opacity, 0.6);
+        assert_eq!(partial.face_locator, FaceLocator::OpenSeeFace);
+        let mesh = Settings {
+            face_locator: FaceLocator::MediaPipe,
+            ..Settings::default()
+        };
+        let back: Settings = serde_json::from_str(&serde_json::to_string(&mesh).unwrap()).unwrap();
+        assert_eq!(back.face_locator, FaceLocator::MediaPipe);
         let repaired = Settings {
             overlay_opacity: f32::NAN,
             ..Settings::default()

@@ -428,9 +428,11 @@ impl StudioApp {
             return;
         }
         let ctx = ctx.clone();
-        match FootageJob::start(self.scene.clone(), FootageRequest::new(input), move || {
-            ctx.request_repaint()
-        }) {
+        let request = FootageRequest {
+            locator: self.settings.face_locator.choice(),
+            ..FootageRequest::new(input)
+        };
+        match FootageJob::start(self.scene.clone(), request, move || ctx.request_repaint()) {
             Ok(job) => {
                 self.job = Some(job);
                 self.settings
@@ -595,6 +597,15 @@ impl StudioApp {
                 ui.close();
                 self.open_webcam(ui.ctx());
             }
+            // The browser's locator runs in its worker with OpenSeeFace's models only.
+            #[cfg(not(target_arch = "wasm32"))]
+            ui.menu_button("Face locator", |ui| {
+                use crate::settings::FaceLocator;
+                for locator in [FaceLocator::OpenSeeFace, FaceLocator::MediaPipe] {
+                    ui.radio_value(&mut self.settings.face_locator, locator, locator.label())
+                        .on_hover_text("Used for footage opened from now on");
+                }
+            });
             ui.separator();
             #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Open session...").clicked() {
