@@ -712,3 +712,65 @@ fn the_follower_finds_the_face_as_it_moves_loses_it_and_finds_it_again() {
         "followed the small face: nose at {centre}"
     );
 }
+
+/// Issue 32, item 7: a face a twelfth of a 1280 x 720 frame's height is too small for the
+/// whole-frame pass; the tiled search finds it, the follower keeps it frame after frame
+/// (searching where it was), and Face Mesh's eyes land on the scaled marks.
+#[test]
+fn small_faces_are_found_by_tiles_and_followed() {
+    use tracking::mediapipe::{MESH_TO_IBUG68, MeshFollower};
+    let side = 60u32; // 1/12 of 720
+    let small = image::imageops::resize(
+        &real_crop(),
+        side,
+        side,
+        image::imageops::FilterType::Triangle,
+    );
+    let frame_at = |x: u32, y: u32| {
+        let mut frame = RgbImage::from_pixel(1280, 720, Rgb([128, 128, 128]));
+        image::imageops::replace(&mut frame, &small, i64::from(x), i64::from(y));
+        frame
+    };
+    let scale = side as f32 / 224.0;
+    let marks_at = |x: u32, y: u32| {
+        FACE_FEATURES_IN_CROP
+            .map(|(mx, my)| Vec2::new(x as f32 + mx * scale, y as f32 + my * scale))
+    };
+    let mut located = load(BackendKind::OnnxRuntime);
+    let frame = frame_at(500, 300);
+    assert!(
+        located.detect(&frame).unwrap().is_empty(),
+        "the whole-frame pass misses it"
+    );
+    let tiled = located.detect_tiled(&frame).unwrap();
+    assert_eq!(tiled.len(), 1, "{tiled:?}");
+    let marks = marks_at(500, 300);
+    assert!(
+        tiled[0]
+            .face_box
+            .centre()
+            .distance((marks[0] + marks[1] + marks[3]) / 3.0)
+            < 0.2 * side as f32
+    );
+    let grey = RgbImage::from_pixel(1280, 720, Rgb([128, 128, 128]));
+    assert!(located.detect_tiled(&grey).unwrap().is_empty());
+
+    let mut follower = MeshFollower::new(located, MESH_TO_IBUG68);
+    for (k, (x, y)) in [(500, 300), (506, 302), (512, 304), (518, 306)]
+        .into_iter()
+        .enumerate()
+    {
+        let found = follower
+            .step(&frame_at(x, y))
+            .unwrap()
+            .unwrap_or_else(|| panic!("frame {k}: the small face was lost"));
+        let marks = marks_at(x, y);
+        let eye_distance = (marks[1] - marks[0]).length();
+        for (got, mark) in mesh_features(&found.mesh).into_iter().zip(marks).take(2) {
+            assert!(
+                (got - mark).length() < 0.15 * eye_distance,
+                "frame {k}: eye {got} vs {mark}"
+            );
+        }
+    }
+}
