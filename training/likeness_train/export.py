@@ -10,7 +10,8 @@ Runtime latency of each model with 1 and 2 threads (median of 30 runs after 5 wa
 Weights are stored as float16 (the arithmetic stays float32; `store_weights_fp16`) unless
 `--fp32-weights`; the manifest records what the rounding changed.
 `--model-net-from DIR` exports TrackNet alone and keeps DIR's ModelNet and R_0^t (a
-landmark warm-up trains TrackNet only); the manifest records where they came from.
+landmark warm-up trains TrackNet only; a float32 ModelNet is stored as float16 unless
+`--fp32-weights`); the manifest records where they came from.
 The manifest's `crop` (where inference puts the square crop around the landmarks,
 preprocess.py) is kept from the manifest it replaces or the committed one when calibrated
 on the same synthetic distribution, and measured again otherwise or with `--recalibrate-crop`.
@@ -371,7 +372,11 @@ def main(argv: list[str] | None = None) -> None:
         if kept_from is None:
             rounding["model_net"] = to_fp16_storage(model_path, cfg["input_size"], batch=cfg.get("frames", 4))
         else:
+            # A kept ModelNet already stored as float16 keeps its record; a float32 one is
+            # stored as float16 now (half its download), measured against itself.
             rounding["model_net"] = (kept_from.get("fp16_storage_max_abs_diff") or {}).get("model_net")
+            if rounding["model_net"] is None:
+                rounding["model_net"] = to_fp16_storage(model_path, cfg["input_size"], batch=cfg.get("frames", 4))
     timings = latency(track_path, model_path, cfg["input_size"], frames=cfg.get("frames", 4))
     crop = crop_framing([args.out / "manifest.json", REPOSITORY_MANIFEST], cfg["input_size"], args.recalibrate_crop)
     training = {

@@ -51,8 +51,16 @@ def test_a_tracknet_only_export_keeps_the_exported_model_net_and_evaluates_with_
     export_main(["--checkpoint", str(first), "--out", str(shipped), "--fp32-weights"])
     before = {n: (shipped / n).read_bytes() for n in ("model_net.onnx", "mean_albedo.safetensors", "track_net.onnx")}
     first_manifest = json.loads((shipped / "manifest.json").read_text())
+    # With float16 weights (the default) the kept float32 ModelNet is stored as float16 too,
+    # its outputs within float16's precision of the kept file's.
+    halved = tmp_path / "halved"
+    export_main(["--checkpoint", str(second), "--out", str(halved), "--model-net-from", str(shipped)])
+    assert (halved / "model_net.onnx").stat().st_size < 0.6 * len(before["model_net.onnx"])
+    assert (halved / "mean_albedo.safetensors").read_bytes() == before["mean_albedo.safetensors"]
+    rounded = json.loads((halved / "manifest.json").read_text())["fp16_storage_max_abs_diff"]["model_net"]
+    assert set(rounded) == {"dS0", "dS", "dR0", "dR"} and 0 < max(rounded.values()) < 1e-2, rounded
     out = tmp_path / "models"
-    export_main(["--checkpoint", str(second), "--out", str(out), "--model-net-from", str(shipped)])
+    export_main(["--checkpoint", str(second), "--out", str(out), "--model-net-from", str(shipped), "--fp32-weights"])
     for name in ("model_net.onnx", "mean_albedo.safetensors"):
         assert (out / name).read_bytes() == before[name], name
     assert (out / "track_net.onnx").read_bytes() != before["track_net.onnx"]
@@ -60,8 +68,8 @@ def test_a_tracknet_only_export_keeps_the_exported_model_net_and_evaluates_with_
     assert manifest["training"]["model_net_from"]["training_commit"] == first_manifest["training_commit"]
     assert manifest["parity_max_abs_diff"]["model_net"] == first_manifest["parity_max_abs_diff"]["model_net"]
     assert manifest["parity_max_abs_diff"]["track_net"] < 1e-4
-    # The new TrackNet is stored as float16 (the default); the kept float32 ModelNet is not.
-    assert manifest["fp16_storage_max_abs_diff"]["model_net"] is None
+    # Both exports kept float32 (`--fp32-weights`).
+    assert manifest["fp16_storage_max_abs_diff"] is None
     assert first_manifest["fp16_storage_max_abs_diff"] is None
 
     # The exported ModelNet behind ModelNet's interface computes what the PyTorch one did.
