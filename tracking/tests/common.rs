@@ -71,3 +71,32 @@ pub fn noise(seed: u32) -> f64 {
     x ^= x >> 16;
     f64::from(x) / f64::from(u32::MAX) * 2.0 - 1.0
 }
+
+/// Features of the face in the real crop (`shared/testdata/faces/openseeface-raw1.png`), in
+/// crop pixels, marked by eye on the image: the centres of the image-left and image-right
+/// eye, the nose tip, the middle of the mouth.
+pub const FACE_FEATURES_IN_CROP: [(f32, f32); 4] =
+    [(78.0, 63.0), (137.0, 46.0), (116.0, 88.0), (122.0, 133.0)];
+
+/// The real 224 x 224 face crop the tests use.
+pub fn real_crop() -> image::RgbImage {
+    let path = repo().join("../shared/testdata/faces/openseeface-raw1.png");
+    match image::open(&path) {
+        Ok(image) => image.to_rgb8(),
+        Err(e) => panic!("cannot read the test face {}: {e}", path.display()),
+    }
+}
+
+/// `crop` pasted at `offset` into a grey 640 x 480 frame, the size of a webcam frame.
+pub fn frame_with_face(crop: &image::RgbImage, offset: (u32, u32)) -> image::RgbImage {
+    let mut frame = image::RgbImage::from_pixel(640, 480, image::Rgb([128, 128, 128]));
+    image::imageops::replace(&mut frame, crop, i64::from(offset.0), i64::from(offset.1));
+    frame
+}
+
+/// Fails the test with the setup hint when ONNX Runtime's library cannot be loaded.
+pub fn require_onnxruntime() {
+    if let Err(e) = tracking::backend::onnxruntime_status() {
+        panic!("ONNX Runtime is needed for this test (scripts/setup.sh installs it): {e}");
+    }
+}

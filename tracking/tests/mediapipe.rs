@@ -6,11 +6,14 @@
 //! these tests fail with the loader's message, which says where to get them. The ONNX
 //! Runtime tests fail when its library cannot be loaded: the setup installs it.
 
+mod common;
+
 use std::path::Path;
+
+use common::{FACE_FEATURES_IN_CROP, real_crop, require_onnxruntime};
 
 use glam::Vec2;
 use image::{Rgb, RgbImage};
-use tracking::backend::onnxruntime_status;
 use tracking::mediapipe::{
     ANCHOR_COUNT, Border, CROP_SCALE, DETECTOR_FILE, FaceMesh, MESH_FILE, MESH_POINTS, MediaPipe,
     MeshDetection, RotatedSquare, decode_detections, default_models_dir, detector_anchors,
@@ -18,12 +21,6 @@ use tracking::mediapipe::{
 };
 use tracking::preprocess::Rect;
 use tracking::{BackendKind, TrackingError};
-
-/// Features of the face in the real crop, in crop pixels, marked by eye on the image (the
-/// same marks as tests/openseeface.rs): the centres of the image-left and image-right eye,
-/// the nose tip, the middle of the mouth.
-const FACE_FEATURES_IN_CROP: [(f32, f32); 4] =
-    [(78.0, 63.0), (137.0, 46.0), (116.0, 88.0), (122.0, 133.0)];
 
 /// Face Mesh's contour of the image-left eye (the subject's right) and the image-right eye,
 /// its nose tip, and the inner lip midpoints (MediaPipe's canonical face mesh topology).
@@ -36,25 +33,9 @@ const LEFT_EYE_CONTOUR: [usize; 16] = [
 const NOSE_TIP: usize = 1;
 const INNER_LIP_MIDDLES: [usize; 2] = [13, 14];
 
-fn real_crop() -> RgbImage {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/testdata/faces/openseeface-raw1.png");
-    match image::open(&path) {
-        Ok(image) => image.to_rgb8(),
-        Err(e) => panic!("cannot read the test face {}: {e}", path.display()),
-    }
-}
-
-/// The real crop pasted at `offset` into a grey 640 x 480 frame (a webcam frame's size).
+/// The real crop pasted at `offset` into a grey 640 x 480 frame.
 fn frame_with_face(offset: (u32, u32)) -> RgbImage {
-    let mut frame = RgbImage::from_pixel(640, 480, Rgb([128, 128, 128]));
-    image::imageops::replace(
-        &mut frame,
-        &real_crop(),
-        i64::from(offset.0),
-        i64::from(offset.1),
-    );
-    frame
+    common::frame_with_face(&real_crop(), offset)
 }
 
 fn features_at(offset: (u32, u32)) -> [Vec2; 4] {
@@ -62,10 +43,8 @@ fn features_at(offset: (u32, u32)) -> [Vec2; 4] {
 }
 
 fn load(kind: BackendKind) -> MediaPipe {
-    if kind == BackendKind::OnnxRuntime
-        && let Err(e) = onnxruntime_status()
-    {
-        panic!("ONNX Runtime is needed for this test (scripts/setup.sh installs it): {e}");
+    if kind == BackendKind::OnnxRuntime {
+        require_onnxruntime();
     }
     match MediaPipe::load(&default_models_dir(), kind, 1) {
         Ok(located) => located,

@@ -4,12 +4,13 @@
 //! these tests fail with the loader's message, which says where to get them. The ONNX
 //! Runtime tests fail when its library cannot be loaded: the setup installs it.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use glam::Vec2;
 use image::{Rgb, RgbImage};
-use tracking::backend::onnxruntime_status;
 use tracking::openseeface::{
     FaceFollower, Landmarks66, OpenSeeFace, default_models_dir, model_files,
 };
@@ -21,34 +22,10 @@ const CANVAS_WIDTH: u32 = 640;
 const CANVAS_HEIGHT: u32 = 480;
 const GREY: Rgb<u8> = Rgb([128, 128, 128]);
 
-/// Features of the face in the real crop, in crop pixels, marked by eye on the image: the
-/// centres of the image-left and image-right eye, the nose tip, the middle of the mouth.
-const FACE_FEATURES_IN_CROP: [(f32, f32); 4] =
-    [(78.0, 63.0), (137.0, 46.0), (116.0, 88.0), (122.0, 133.0)];
-
-fn real_crop() -> RgbImage {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/testdata/faces/openseeface-raw1.png");
-    match image::open(&path) {
-        Ok(image) => image.to_rgb8(),
-        Err(e) => panic!("cannot read the test face {}: {e}", path.display()),
-    }
-}
-
-/// The real crop pasted at `offset` into a grey 640 x 480 frame, the size of a webcam
-/// frame. The detector is made for whole frames: on the bare crop, which the face fills
-/// completely, its peak stays just below upstream's threshold (0.58 against 0.6).
-fn frame_with_face(crop: &RgbImage, offset: (u32, u32)) -> RgbImage {
-    let mut frame = RgbImage::from_pixel(CANVAS_WIDTH, CANVAS_HEIGHT, GREY);
-    image::imageops::replace(&mut frame, crop, i64::from(offset.0), i64::from(offset.1));
-    frame
-}
-
-fn require_onnxruntime() {
-    if let Err(e) = onnxruntime_status() {
-        panic!("ONNX Runtime is needed for this test (scripts/setup.sh installs it): {e}");
-    }
-}
+// The real crop is put in a webcam-sized frame (`frame_with_face`): the detector is made
+// for whole frames, and on the bare crop, which the face fills completely, its peak stays
+// just below upstream's threshold (0.58 against 0.6).
+use common::{FACE_FEATURES_IN_CROP, frame_with_face, real_crop, require_onnxruntime};
 
 fn load(kind: BackendKind) -> OpenSeeFace {
     if kind == BackendKind::OnnxRuntime {
