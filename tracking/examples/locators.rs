@@ -2,7 +2,8 @@
 //! synthetic clips (issue 32, items 3 and 5), by region, before TrackNet or refinement:
 //! OpenSeeFace's 66 points, Face Mesh's points through the common iBUG subset
 //! (`MESH_TO_IBUG68`), and Face Mesh's points over the template's landmark vertices (the
-//! ICT correspondence, what the `mediapipe` locator hands on). NME is the mean distance
+//! ICT correspondence, three points weighted per landmark: what the `mediapipe` locator
+//! hands on). NME is the mean distance
 //! over sqrt(area of the true landmark box); frames a locator finds no face in count once
 //! in its "found" column and not in its NME.
 //!
@@ -14,7 +15,9 @@ use face::{FaceModel, Template};
 use glam::Vec2;
 use tracking::BackendChoice;
 use tracking::evaluate::{Clip, default_clips_dir};
-use tracking::mediapipe::{self, IctCorrespondence, MESH_TO_IBUG68, MediaPipe, MeshFollower};
+use tracking::mediapipe::{
+    self, IctCorrespondence, MESH_TO_IBUG68, MediaPipe, MeshFollower, single_points,
+};
 use tracking::openseeface::{self, FaceFollower, OpenSeeFace};
 use tracking::preprocess::Rect;
 use tracking::source::{FrameSource, Next};
@@ -113,7 +116,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             tallies[1].add(
                 found
                     .as_ref()
-                    .map(|f| f.mesh.to_ibug68(&MESH_TO_IBUG68))
+                    .map(|f| f.mesh.to_ibug68(&single_points(&MESH_TO_IBUG68)))
                     .as_ref(),
                 truth,
             );

@@ -393,7 +393,7 @@ impl Tracker {
             ))),
             LocatorChoice::MediaPipe => {
                 // The points over the template's own landmark vertices, not the common
-                // subset: 3.89 against 4.28 % NME on the held-out clips (tracking/README.md).
+                // subset: 3.59 against 4.13 % NME on the held-out clips (tracking/README.md).
                 let correspondence = IctCorrespondence::load(&config.mediapipe_dir)?;
                 let points = correspondence.ibug68_points(&face.template)?;
                 if config.dense_fit {
