@@ -54,6 +54,12 @@ if [ "$build" -eq 1 ]; then
   else
     echo "web.sh: no OpenSeeFace models in $models/openseeface (set LIKENESS_MODELS); the page will say what is missing" >&2
   fi
+  # Optional: MediaPipe's locator is offered when its folder is served.
+  if [ -d "$models/mediapipe" ]; then
+    ln -s "$(realpath "$models/mediapipe")" "$dist/mediapipe"
+  else
+    echo "web.sh: no MediaPipe models in $models/mediapipe; the page offers OpenSeeFace's locator only" >&2
+  fi
   wasm="$dist/likeness_web_bg.wasm"
   echo "web.sh: built $dist ($(stat -c %s "$wasm") bytes of wasm, $(gzip -9 -c "$wasm" | wc -c) gzipped)"
 fi

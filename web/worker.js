@@ -1,6 +1,7 @@
 // The face-locating worker (web/src/worker.rs): a second instance of the page's wasm
-// module runs OpenSeeFace's detector and landmarks on the frames the page posts, in the
-// order they come, while the page's thread does the rest of each frame.
+// module runs the face locator (OpenSeeFace's detector and landmarks, or MediaPipe's
+// BlazeFace and Face Mesh) on the frames the page posts, in the order they come, while the
+// page's thread does the rest of each frame.
 import init, { FaceLocatorWorker } from "./likeness_web.js";
 
 let locator = null;
@@ -28,7 +29,9 @@ async function handle(msg) {
   if (msg.kind === "init") {
     try {
       await init({ module_or_path: msg.module });
-      locator = new FaceLocatorWorker(msg.detector, msg.landmarks);
+      locator = msg.locator === "mediapipe"
+        ? FaceLocatorWorker.mediapipe(msg.detector, msg.mesh, msg.points)
+        : new FaceLocatorWorker(msg.detector, msg.landmarks);
     } catch (e) {
       fail("the face locator did not start: " + message(e));
     }

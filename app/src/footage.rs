@@ -399,12 +399,14 @@ mod stepped {
             )
         }
 
-        /// Tracks and personalizes `feed`, called `input` in messages, locating faces with
-        /// `remote_locator` beside the page's thread when there is one.
+        /// Tracks and personalizes `feed`, called `input` in messages, finding faces with
+        /// `locator`: with `remote_locator` (the same locator) beside the page's thread when
+        /// there is one.
         pub fn start_feed(
             scene: Arc<Scene>,
             input: String,
             feed: FrameFeed,
+            locator: tracking::pipeline::LocatorChoice,
             remote_locator: Option<Box<dyn crate::stepped::RemoteFaceLocator>>,
         ) -> Result<Self> {
             let networks = scene
@@ -414,6 +416,7 @@ mod stepped {
             let face = Arc::new(FaceModel::new(scene.model.template.clone()));
             let config = TrackerConfig {
                 threads: 1,
+                locator,
                 ..TrackerConfig::default()
             };
             let tracker = networks.tracker(face.clone(), config, true)?;

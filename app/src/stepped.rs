@@ -228,6 +228,11 @@ impl SteppedTracking {
         self
     }
 
+    /// Frames tracked so far in which a face was found.
+    pub fn faces_found(&self) -> usize {
+        self.outputs.iter().filter(|o| o.record.face).count()
+    }
+
     /// Whether faces are being located beside this thread (a remote locator was given and
     /// has not failed).
     pub fn locating_beside(&self) -> bool {

@@ -419,6 +419,28 @@ impl StudioApp {
     /// Starts tracking and personalizing footage (an image, a folder, a video file or
     /// `webcam[:DEVICE]`) on a worker thread; the session replaces the current one when
     /// it is done.
+    /// Whether File > Face locator offers MediaPipe's: always natively (a missing model is
+    /// said when footage is opened), in the browser when the page served its models.
+    fn mediapipe_offered(&self) -> bool {
+        cfg!(not(target_arch = "wasm32"))
+            || self
+                .scene
+                .networks
+                .as_ref()
+                .is_some_and(|n| n.mediapipe.is_some())
+    }
+
+    /// The locator footage is opened with: the chosen one, or OpenSeeFace's where
+    /// MediaPipe's is not offered (a setting saved where it was).
+    fn face_locator_choice(&self) -> tracking::pipeline::LocatorChoice {
+        let chosen = self.settings.face_locator;
+        if chosen == crate::settings::FaceLocator::MediaPipe && !self.mediapipe_offered() {
+            crate::settings::FaceLocator::OpenSeeFace.choice()
+        } else {
+            chosen.choice()
+        }
+    }
+
     pub fn open_footage(&mut self, ctx: &egui::Context, input: &str) {
         if let Some(job) = &self.job {
             self.state.notices.error(format!(
@@ -429,7 +451,7 @@ impl StudioApp {
         }
         let ctx = ctx.clone();
         let request = FootageRequest {
-            locator: self.settings.face_locator.choice(),
+            locator: self.face_locator_choice(),
             ..FootageRequest::new(input)
         };
         match FootageJob::start(self.scene.clone(), request, move || ctx.request_repaint()) {
@@ -597,15 +619,15 @@ impl StudioApp {
                 ui.close();
                 self.open_webcam(ui.ctx());
             }
-            // The browser's locator runs in its worker with OpenSeeFace's models only.
-            #[cfg(not(target_arch = "wasm32"))]
-            ui.menu_button("Face locator", |ui| {
-                use crate::settings::FaceLocator;
-                for locator in [FaceLocator::OpenSeeFace, FaceLocator::MediaPipe] {
-                    ui.radio_value(&mut self.settings.face_locator, locator, locator.label())
-                        .on_hover_text("Used for footage opened from now on");
-                }
-            });
+            if self.mediapipe_offered() {
+                ui.menu_button("Face locator", |ui| {
+                    use crate::settings::FaceLocator;
+                    for locator in [FaceLocator::OpenSeeFace, FaceLocator::MediaPipe] {
+                        ui.radio_value(&mut self.settings.face_locator, locator, locator.label())
+                            .on_hover_text("Used for footage opened from now on");
+                    }
+                });
+            }
             ui.separator();
             #[cfg(not(target_arch = "wasm32"))]
             if ui.button("Open session...").clicked() {
@@ -998,7 +1020,10 @@ impl StudioApp {
         );
         match made {
             Ok(mut job) => {
-                job.remote_locator = self.web_host.as_ref().and_then(|host| host.face_locator());
+                // The demo tracks with the default locator (its tracker's config).
+                job.remote_locator = self.web_host.as_ref().and_then(|host| {
+                    host.face_locator(tracking::pipeline::TrackerConfig::default().locator)
+                });
                 self.demo_job = Some(job);
             }
             Err(e) => self
@@ -1088,8 +1113,12 @@ impl StudioApp {
     /// Starts a footage job on frames the page supplies (the browser).
     #[cfg(target_arch = "wasm32")]
     fn start_feed(&mut self, input: &str, feed: crate::stepped::FrameFeed) {
-        let remote = self.web_host.as_ref().and_then(|host| host.face_locator());
-        match FootageJob::start_feed(self.scene.clone(), input.to_owned(), feed, remote) {
+        let locator = self.face_locator_choice();
+        let remote = self
+            .web_host
+            .as_ref()
+            .and_then(|host| host.face_locator(locator));
+        match FootageJob::start_feed(self.scene.clone(), input.to_owned(), feed, locator, remote) {
             Ok(job) => {
                 self.job = Some(job);
                 self.stop_demo_for("your footage");

@@ -61,9 +61,13 @@ pub trait WebHost {
     /// The camera's newest frame.
     fn camera_frame(&self) -> CameraFrame;
     fn stop_camera(&self);
-    /// The page's face-locating worker, for one job; `None` when the page has none (the
-    /// job then locates faces on the page's thread).
-    fn face_locator(&self) -> Option<Box<dyn crate::stepped::RemoteFaceLocator>>;
+    /// The page's face-locating worker running `locator` (OpenSeeFace's for `Auto`), for one
+    /// job; `None` when the page has none for it (the job then locates faces on the page's
+    /// thread, with its tracker's own locator, which must be the same).
+    fn face_locator(
+        &self,
+        locator: tracking::pipeline::LocatorChoice,
+    ) -> Option<Box<dyn crate::stepped::RemoteFaceLocator>>;
 }
 
 /// Whether a file name is a video the browser can decode (by extension).

@@ -12,9 +12,13 @@ use face::uv::UvMap;
 use crate::BackendKind;
 use crate::backend::TractModel;
 use crate::error::{Result, TrackingError};
+use crate::mediapipe::{
+    CORRESPONDENCE_FILE, DETECTOR_FILE, Ibug68Points, IctCorrespondence, MESH_FILE, MediaPipe,
+    MeshFollower,
+};
 use crate::networks::{Manifest, ModelNet, TrackNet};
 use crate::openseeface::{FaceFollower, OpenSeeFace, model_files};
-use crate::pipeline::{Tracker, TrackerConfig};
+use crate::pipeline::{FootageLocator, LocatorChoice, Tracker, TrackerConfig};
 
 /// A file's bytes with the name messages give it (its URL or path).
 #[derive(Clone, Debug)]
@@ -56,7 +60,7 @@ impl NamedBytes {
 }
 
 /// TrackNet, ModelNet, their manifest and mean albedo, and (for footage) the OpenSeeFace
-/// detector and landmark network, as bytes.
+/// detector and landmark network and MediaPipe's BlazeFace and Face Mesh, as bytes.
 #[derive(Clone, Debug)]
 pub struct NetworkBytes {
     pub manifest: Manifest,
@@ -66,6 +70,8 @@ pub struct NetworkBytes {
     /// The OpenSeeFace `_plain_b1` detector and landmark network; without them only
     /// pre-cropped faces can be tracked.
     pub openseeface: Option<(NamedBytes, NamedBytes)>,
+    /// MediaPipe's models and their ICT correspondence, for [`LocatorChoice::MediaPipe`].
+    pub mediapipe: Option<MediaPipeBytes>,
 }
 
 impl NetworkBytes {
@@ -86,11 +92,14 @@ impl NetworkBytes {
             mean_albedo: NamedBytes::read(&manifest.mean_albedo_file)?,
             manifest,
             openseeface,
+            mediapipe: None,
         })
     }
 
-    /// A tracker on tract. `footage` says the input is real footage, which needs the
-    /// OpenSeeFace models to find the face.
+    /// A tracker on tract, its face found as `config.locator` says: MediaPipe's models for
+    /// [`LocatorChoice::MediaPipe`], none for [`LocatorChoice::PreCropped`], else
+    /// OpenSeeFace's. `footage` says the input is real footage, which needs a locator's
+    /// models to find the face.
     pub fn tracker(
         &self,
         face: Arc<FaceModel>,
@@ -98,18 +107,36 @@ impl NetworkBytes {
         footage: bool,
     ) -> Result<Tracker> {
         let track_net = TrackNet::from_backend(Box::new(self.track_net.tract()?), &self.manifest);
-        let follower = match self.face_follower()? {
-            Some(follower) => Some(follower),
-            None if footage => {
-                return Err(TrackingError::InvalidInput(
-                    "real footage needs face detection: the OpenSeeFace models \
-                     (mnv3_detection_plain_b1.onnx, lm_model0_plain_b1.onnx) were not loaded"
-                        .into(),
-                ));
+        let locator = match config.locator {
+            LocatorChoice::PreCropped => None,
+            LocatorChoice::MediaPipe => {
+                let mediapipe = self.mediapipe.as_ref().ok_or_else(|| {
+                    TrackingError::InvalidInput(format!(
+                        "the MediaPipe face locator needs MediaPipe's models ({DETECTOR_FILE}, \
+                         {MESH_FILE}) and {CORRESPONDENCE_FILE}, which were not loaded"
+                    ))
+                })?;
+                let points = mediapipe.correspondence.ibug68_points(&face.template)?;
+                Some(FootageLocator::MediaPipe {
+                    follower: Box::new(mediapipe.mesh_follower(points)?),
+                    dense: config
+                        .dense_fit
+                        .then(|| mediapipe.correspondence.fit_points()),
+                })
             }
-            None => None,
+            LocatorChoice::Landmarks | LocatorChoice::Auto => match self.face_follower()? {
+                Some(follower) => Some(FootageLocator::OpenSeeFace(Box::new(follower))),
+                None if footage => {
+                    return Err(TrackingError::InvalidInput(
+                        "real footage needs face detection: the OpenSeeFace models \
+                         (mnv3_detection_plain_b1.onnx, lm_model0_plain_b1.onnx) were not loaded"
+                            .into(),
+                    ));
+                }
+                None => None,
+            },
         };
-        Tracker::from_parts(face, config, self.manifest.clone(), track_net, follower)
+        Tracker::from_parts(face, config, self.manifest.clone(), track_net, locator)
     }
 
     /// The OpenSeeFace models on tract, following a face through a video; `None` without
@@ -143,4 +170,61 @@ pub fn face_follower(detector: &NamedBytes, landmarks: &NamedBytes) -> Result<Fa
         (Box::new(detector.tract()?), &detector.name),
         (Box::new(landmarks.tract()?), &landmarks.name),
     )?))
+}
+
+/// MediaPipe's BlazeFace (short range) and Face Mesh, and the ICT vertex under each Face
+/// Mesh point, as bytes.
+#[derive(Clone, Debug)]
+pub struct MediaPipeBytes {
+    pub detector: NamedBytes,
+    pub mesh: NamedBytes,
+    pub correspondence: IctCorrespondence,
+}
+
+impl MediaPipeBytes {
+    /// The three files of a MediaPipe model folder (as [`MediaPipe::load`] and
+    /// [`IctCorrespondence::load`] read it).
+    pub fn read(dir: &Path) -> Result<Self> {
+        Ok(Self {
+            detector: NamedBytes::read(&dir.join(DETECTOR_FILE))?,
+            mesh: NamedBytes::read(&dir.join(MESH_FILE))?,
+            correspondence: IctCorrespondence::load(dir)?,
+        })
+    }
+
+    /// From fetched bytes; `correspondence` is `ict_correspondence.json`'s.
+    pub fn from_bytes(
+        detector: NamedBytes,
+        mesh: NamedBytes,
+        correspondence: &NamedBytes,
+    ) -> Result<Self> {
+        Ok(Self {
+            correspondence: IctCorrespondence::from_json(
+                &correspondence.bytes,
+                &correspondence.name,
+            )?,
+            detector,
+            mesh,
+        })
+    }
+
+    /// BlazeFace and Face Mesh on tract, following a face through a video and handing on
+    /// `ibug68`'s points as its 68 landmarks.
+    pub fn mesh_follower(&self, ibug68: Ibug68Points) -> Result<MeshFollower> {
+        mesh_follower(&self.detector, &self.mesh, ibug68)
+    }
+}
+
+/// BlazeFace and Face Mesh on tract (the browser's worker has no correspondence or template,
+/// only the networks and the points the page worked out).
+pub fn mesh_follower(
+    detector: &NamedBytes,
+    mesh: &NamedBytes,
+    ibug68: Ibug68Points,
+) -> Result<MeshFollower> {
+    let located = MediaPipe::from_backends(
+        (Box::new(detector.tract()?), &detector.name),
+        (Box::new(mesh.tract()?), &mesh.name),
+    )?;
+    Ok(MeshFollower::new(located, ibug68))
 }

@@ -666,6 +666,49 @@ pub fn single_points(points: &[usize; crate::openseeface::IBUG_LANDMARK_COUNT]) 
     points.map(|i| [(i, 1.0), (i, 0.0), (i, 0.0)])
 }
 
+/// Length of [`ibug68_points_to_f32s`]: (index, weight) of three points per landmark.
+pub const IBUG68_POINTS_F32S: usize = crate::openseeface::IBUG_LANDMARK_COUNT * 3 * 2;
+
+/// [`Ibug68Points`] as numbers, for a Web Worker's message (the worker has no template to
+/// work them out from): per landmark, three (index, weight) pairs. An index is exact in an
+/// f32 (it is below 2^24).
+pub fn ibug68_points_to_f32s(points: &Ibug68Points) -> Vec<f32> {
+    points
+        .iter()
+        .flatten()
+        .flat_map(|&(i, w)| [i as f32, w])
+        .collect()
+}
+
+/// The inverse of [`ibug68_points_to_f32s`]; an error for numbers that are not such points
+/// (wrong length, an index that is not a Face Mesh point, a weight that is not finite).
+pub fn ibug68_points_from_f32s(numbers: &[f32]) -> Result<Ibug68Points> {
+    if numbers.len() != IBUG68_POINTS_F32S {
+        return Err(TrackingError::InvalidInput(format!(
+            "the landmark points are {IBUG68_POINTS_F32S} numbers, not {}",
+            numbers.len()
+        )));
+    }
+    let mut out = [[(0usize, 0.0f32); 3]; crate::openseeface::IBUG_LANDMARK_COUNT];
+    for (k, pair) in numbers.chunks_exact(2).enumerate() {
+        let (index, weight) = (pair[0], pair[1]);
+        if !(index >= 0.0 && index < MESH_POINTS as f32 && index.fract() == 0.0) {
+            return Err(TrackingError::InvalidInput(format!(
+                "landmark {} names Face Mesh point {index}, there are {MESH_POINTS}",
+                k / 3
+            )));
+        }
+        if !weight.is_finite() {
+            return Err(TrackingError::InvalidInput(format!(
+                "landmark {} has the weight {weight}",
+                k / 3
+            )));
+        }
+        out[k / 3][k % 3] = (index as usize, weight);
+    }
+    Ok(out)
+}
+
 impl FaceMesh {
     /// The iBUG 68 landmarks as `points` picks them ([`MESH_TO_IBUG68`] or
     /// [`IctCorrespondence::ibug68_points`]), each with the face's presence as its
@@ -689,6 +732,32 @@ impl FaceMesh {
 pub const FACE_OVAL: [usize; 36] = [
     10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152,
     148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109,
+];
+
+/// Face Mesh's eyelid, lip and brow lines, each an open chain in order along the line, the
+/// corners left out (they are fixed features): upper and lower lid of each eye, upper and
+/// lower outer and inner lip, upper and lower edge of each brow. A point on such a line is
+/// placed well across it and poorly along it, and where it lands along the line depends on
+/// the detector more than on the mesh vertex the correspondence gives it; refinement keeps
+/// the across-line part of its residual and little of the along-line part, as for the oval.
+pub const FEATURE_LINES: [&[usize]; 12] = [
+    // right eye (the subject's): upper lid, lower lid
+    &[246, 161, 160, 159, 158, 157, 173],
+    &[7, 163, 144, 145, 153, 154, 155],
+    // left eye: upper lid, lower lid
+    &[466, 388, 387, 386, 385, 384, 398],
+    &[249, 390, 373, 374, 380, 381, 382],
+    // outer lip: upper, lower
+    &[185, 40, 39, 37, 0, 267, 269, 270, 409],
+    &[146, 91, 181, 84, 17, 314, 405, 321, 375],
+    // inner lip: upper, lower
+    &[191, 80, 81, 82, 13, 312, 311, 310, 415],
+    &[95, 88, 178, 87, 14, 317, 402, 318, 324],
+    // right brow: upper, lower edge; left brow: upper, lower edge
+    &[70, 63, 105, 66, 107],
+    &[46, 53, 52, 65, 55],
+    &[300, 293, 334, 296, 336],
+    &[276, 283, 282, 295, 285],
 ];
 
 /// The file beside the models that says which ICT vertex lies under each Face Mesh point.
@@ -740,11 +809,15 @@ impl IctCorrespondence {
         })
     }
 
-    /// All 468 points for refinement: their ICT vertices, the face oval as the one contour.
+    /// All 468 points for refinement: their ICT vertices, the face oval and the
+    /// [`FEATURE_LINES`] as contour chains.
     pub fn fit_points(&self) -> crate::refine::FitPoints {
         crate::refine::FitPoints {
             vertices: self.vertices.clone(),
-            contours: vec![FACE_OVAL.to_vec()],
+            contours: std::iter::once(&FACE_OVAL[..])
+                .chain(FEATURE_LINES)
+                .map(<[usize]>::to_vec)
+                .collect(),
         }
     }
 

@@ -133,6 +133,18 @@ pub struct FrameOutput {
     pub times: StageTimes,
 }
 
+/// A face locator for footage, its networks already loaded ([`Tracker::from_parts`]).
+pub enum FootageLocator {
+    /// OpenSeeFace's detector and 66 landmarks.
+    OpenSeeFace(Box<FaceFollower>),
+    /// MediaPipe's BlazeFace and Face Mesh; `dense`: the points refinement fits instead of
+    /// the 68 (all 468 through the ICT correspondence), or `None` to fit the 68.
+    MediaPipe {
+        follower: Box<MeshFollower>,
+        dense: Option<FitPoints>,
+    },
+}
+
 enum Locator {
     Landmarks(Box<FaceFollower>),
     Mesh(Box<MeshFollower>),
@@ -430,20 +442,21 @@ impl Tracker {
     }
 
     /// A tracker from networks already loaded (the browser reads them from fetched bytes):
-    /// `follower` finds the face in footage; without it every image is taken as a face
+    /// `locator` finds the face in footage; without it every image is taken as a face
     /// crop framed like the training images.
     pub fn from_parts(
         face: Arc<FaceModel>,
         config: TrackerConfig,
         manifest: Manifest,
         track_net: TrackNet,
-        follower: Option<FaceFollower>,
+        locator: Option<FootageLocator>,
     ) -> Result<Self> {
-        let locator = match follower {
-            Some(follower) => Locator::Landmarks(Box::new(follower)),
-            None => Locator::PreCropped,
+        let (locator, dense_points) = match locator {
+            Some(FootageLocator::OpenSeeFace(follower)) => (Locator::Landmarks(follower), None),
+            Some(FootageLocator::MediaPipe { follower, dense }) => (Locator::Mesh(follower), dense),
+            None => (Locator::PreCropped, None),
         };
-        Self::assemble(face, config, manifest, track_net, locator, None)
+        Self::assemble(face, config, manifest, track_net, locator, dense_points)
     }
 
     fn assemble(

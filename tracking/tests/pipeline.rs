@@ -396,6 +396,88 @@ fn a_face_located_elsewhere_and_sent_as_numbers_tracks_as_in_one_tracker() {
     assert!(split.process_located(&frame, Ok(located)).record.face);
 }
 
+/// The browser's MediaPipe locator: the tracker made from fetched bytes tracks as the one
+/// loaded from files (both on tract), and the worker's follower, made from the networks and
+/// the 68 points sent as numbers (it has no template), locates the face as that tracker's.
+#[test]
+fn mediapipe_from_bytes_tracks_as_from_files_and_in_a_worker() {
+    let clip = clip();
+    let mediapipe_dir = tracking::mediapipe::default_models_dir();
+    let mut networks =
+        tracking::bundle::NetworkBytes::read(&default_networks_dir(), None).expect("networks");
+    let config = TrackerConfig {
+        fov_deg: Some(clip.fov_deg()),
+        backend: BackendChoice::Only(BackendKind::Tract),
+        locator: LocatorChoice::MediaPipe,
+        mediapipe_dir: mediapipe_dir.clone(),
+        ..TrackerConfig::default()
+    };
+    let refused = networks
+        .tracker(face_model(), config.clone(), true)
+        .err()
+        .expect("MediaPipe's locator without its models");
+    assert!(
+        refused.to_string().contains("face_landmark.onnx"),
+        "{refused}"
+    );
+    networks.mediapipe =
+        Some(tracking::bundle::MediaPipeBytes::read(&mediapipe_dir).expect("MediaPipe models"));
+    let mut from_files = Tracker::new(face_model(), config.clone(), true).expect("tracker");
+    let mut from_bytes = networks
+        .tracker(face_model(), config.clone(), true)
+        .expect("tracker");
+    let mut split = networks
+        .tracker(face_model(), config, true)
+        .expect("tracker");
+    let bytes = networks.mediapipe.as_ref().expect("set above");
+    let points = bytes
+        .correspondence
+        .ibug68_points(&face_model().template)
+        .expect("points");
+    let numbers = tracking::mediapipe::ibug68_points_to_f32s(&points);
+    let received = tracking::mediapipe::ibug68_points_from_f32s(&numbers).expect("read back");
+    assert_eq!(received, points);
+    let mut worker = tracking::bundle::mesh_follower(&bytes.detector, &bytes.mesh, received)
+        .expect("the worker's follower");
+    let mut source = clip.source();
+    for k in 0..4 {
+        let Next::Frame(frame) = source.next_frame().expect("frame") else {
+            panic!("clip frame {k} unreadable");
+        };
+        let expected = from_files.process(&frame);
+        assert!(expected.record.face, "frame {k}");
+        assert!(
+            expected.dense_observations.is_some(),
+            "refined on the dense points"
+        );
+        let output = from_bytes.process(&frame);
+        assert_eq!(output.record, expected.record, "frame {k}");
+        let located = LocatedFace::follow_mesh(&mut worker, &frame.image)
+            .expect("located")
+            .expect("the clip shows a face");
+        let sent = LocatedFace::from_f32s(&located.to_f32s()).expect("the flat form reads back");
+        let output = split.process_located(&frame, Ok(Some(sent)));
+        assert_eq!(output.record, expected.record, "frame {k}");
+    }
+}
+
+/// The points' flat form refuses what is not such points.
+#[test]
+fn ibug68_points_from_bad_numbers_are_refused() {
+    use tracking::mediapipe::{IBUG68_POINTS_F32S, ibug68_points_from_f32s};
+    assert!(ibug68_points_from_f32s(&[0.0; 5]).is_err());
+    let mut numbers = vec![0.0f32; IBUG68_POINTS_F32S];
+    assert!(ibug68_points_from_f32s(&numbers).is_ok());
+    numbers[6] = 468.0;
+    assert!(ibug68_points_from_f32s(&numbers).is_err());
+    numbers[6] = 1.5;
+    assert!(ibug68_points_from_f32s(&numbers).is_err());
+    numbers[6] = 3.0;
+    numbers[7] = f32::NAN;
+    let refused = ibug68_points_from_f32s(&numbers).expect_err("a NaN weight");
+    assert!(refused.to_string().contains("landmark 1"), "{refused}");
+}
+
 /// Issue 31, item 4: the default refinement (its weight sparsity chosen on clips of seed
 /// 9002, tracking/README.md) may never make the held-out clips' expression MAE worse than
 /// TrackNet alone, and still lowers their landmark error.

@@ -1,5 +1,6 @@
-//! The page's tracking benchmark, `window.likeness.benchTracking()`: the demo clip's frames
-//! tracked again through the studio's own job ([`SteppedTracking`], faces located in the
+//! The page's tracking benchmark, `window.likeness.benchTracking(locator)`: the demo clip's
+//! frames tracked again, faces found by `locator` (`"openseeface"`, the default, or
+//! `"mediapipe"`), through the studio's own job ([`SteppedTracking`], faces located in the
 //! worker beside the page's thread) with the studio not drawing meanwhile, timed by the
 //! wall clock. In the studio the same job shares the page's thread with drawing, which on
 //! a software-rendered canvas (headless Chromium's SwiftShader) costs more than tracking;
@@ -14,7 +15,7 @@ use likeness::demo::DemoConfig;
 use likeness::scene::Scene;
 use likeness::stepped::{FrameFeed, SteppedTracking, TrackingRate};
 use likeness::web_host::WebHost;
-use tracking::pipeline::TrackerConfig;
+use tracking::pipeline::{LocatorChoice, TrackerConfig};
 use wasm_bindgen::prelude::*;
 
 use crate::page::js_set;
@@ -24,8 +25,9 @@ use web_time::{Duration, Instant};
 /// What the page's thread shares with the benchmark.
 #[derive(Default)]
 pub struct BenchState {
-    /// `benchTracking()` was called: the promise's resolve and reject functions.
-    requested: Option<(js_sys::Function, js_sys::Function)>,
+    /// `benchTracking()` was called: the locator asked for and the promise's resolve and
+    /// reject functions.
+    requested: Option<(LocatorChoice, js_sys::Function, js_sys::Function)>,
     /// A benchmark is running: the studio does not draw.
     pub running: bool,
 }
@@ -33,10 +35,17 @@ pub struct BenchState {
 /// Installs `window.likeness.benchTracking()` on `report` (`window.likeness`). It returns a
 /// promise of the result; the studio starts the run on its next frame (it holds the frames).
 pub fn install(report: &js_sys::Object, state: Rc<RefCell<BenchState>>, ctx: egui::Context) {
-    let function = Closure::<dyn FnMut() -> js_sys::Promise>::new(move || {
+    let function = Closure::<dyn FnMut(JsValue) -> js_sys::Promise>::new(move |name: JsValue| {
         let state = state.clone();
         let ctx = ctx.clone();
         js_sys::Promise::new(&mut |resolve, reject| {
+            let locator = match bench_locator(&name) {
+                Ok(locator) => locator,
+                Err(e) => {
+                    let _ = reject.call1(&JsValue::NULL, &js_sys::Error::new(&e).into());
+                    return;
+                }
+            };
             let mut state = state.borrow_mut();
             if state.running || state.requested.is_some() {
                 let _ = reject.call1(
@@ -45,13 +54,31 @@ pub fn install(report: &js_sys::Object, state: Rc<RefCell<BenchState>>, ctx: egu
                 );
                 return;
             }
-            state.requested = Some((resolve, reject));
+            state.requested = Some((locator, resolve, reject));
             ctx.request_repaint();
         })
     });
     js_set(report, "benchTracking", function.as_ref().clone());
     // The function lives as long as the page.
     function.forget();
+}
+
+/// The locator `benchTracking(name)` names: OpenSeeFace's when none is named.
+fn bench_locator(name: &JsValue) -> Result<LocatorChoice, String> {
+    if name.is_undefined() || name.is_null() {
+        return Ok(LocatorChoice::Landmarks);
+    }
+    match name.as_string().as_deref() {
+        Some("openseeface") => Ok(LocatorChoice::Landmarks),
+        Some("mediapipe") => Ok(LocatorChoice::MediaPipe),
+        Some(other) => Err(format!(
+            "benchTracking: the locator is \"openseeface\" or \"mediapipe\", not {other:?}"
+        )),
+        None => Err(
+            "benchTracking: the locator is \"openseeface\" or \"mediapipe\", not a non-string"
+                .into(),
+        ),
+    }
 }
 
 /// Starts a requested benchmark on `frames()` (the demo's clip, copied only then); `None`:
@@ -63,7 +90,7 @@ pub fn start_if_requested(
     frames: impl FnOnce() -> Option<Vec<RgbImage>>,
     ctx: &egui::Context,
 ) {
-    let Some((resolve, reject)) = state.borrow_mut().requested.take() else {
+    let Some((locator, resolve, reject)) = state.borrow_mut().requested.take() else {
         return;
     };
     let Some(frames) = frames() else {
@@ -76,7 +103,7 @@ pub fn start_if_requested(
     state.borrow_mut().running = true;
     let (state, scene, host, ctx) = (state.clone(), scene.clone(), host.clone(), ctx.clone());
     wasm_bindgen_futures::spawn_local(async move {
-        let result = run(&scene, host.as_ref(), frames).await;
+        let result = run(&scene, host.as_ref(), frames, locator).await;
         state.borrow_mut().running = false;
         ctx.request_repaint();
         match result {
@@ -104,7 +131,12 @@ async fn yield_to_browser() {
     let _ = JsFuture::from(promise).await;
 }
 
-async fn run(scene: &Scene, host: &dyn WebHost, frames: Vec<RgbImage>) -> Result<JsValue, String> {
+async fn run(
+    scene: &Scene,
+    host: &dyn WebHost,
+    frames: Vec<RgbImage>,
+    locator: LocatorChoice,
+) -> Result<JsValue, String> {
     let networks = scene
         .networks
         .clone()
@@ -113,6 +145,7 @@ async fn run(scene: &Scene, host: &dyn WebHost, frames: Vec<RgbImage>) -> Result
     let config = TrackerConfig {
         threads: 1,
         fov_deg: Some(DemoConfig::default().fov_deg),
+        locator,
         ..TrackerConfig::default()
     };
     let tracker = networks
@@ -128,7 +161,7 @@ async fn run(scene: &Scene, host: &dyn WebHost, frames: Vec<RgbImage>) -> Result
         usize::MAX,
         DemoConfig::default().personalize_frames,
     )
-    .with_remote_locator(host.face_locator());
+    .with_remote_locator(host.face_locator(locator));
     let beside = job.locating_beside();
     let started = Instant::now();
     // The tracking stage only: personalization is not part of the rate.
@@ -150,12 +183,32 @@ async fn run(scene: &Scene, host: &dyn WebHost, frames: Vec<RgbImage>) -> Result
         }
     }
     let still_beside = job.locating_beside();
-    Ok(report(&job.rate, clip_frames, beside && still_beside))
+    let found = job.faces_found();
+    Ok(report(
+        &job.rate,
+        clip_frames,
+        beside && still_beside,
+        locator,
+        found,
+    ))
 }
 
-/// `{frames, wallSeconds, fps, locatedInWorker, stageMs: {...}}`.
-fn report(rate: &TrackingRate, clip_frames: usize, in_worker: bool) -> JsValue {
+/// `{locator, frames, clipFrames, facesFound, wallSeconds, fps, locatedInWorker, stageMs:
+/// {...}}`.
+fn report(
+    rate: &TrackingRate,
+    clip_frames: usize,
+    in_worker: bool,
+    locator: LocatorChoice,
+    faces_found: usize,
+) -> JsValue {
     let object = js_sys::Object::new();
+    let name = match locator {
+        LocatorChoice::MediaPipe => "mediapipe",
+        _ => "openseeface",
+    };
+    js_set(&object, "locator", name);
+    js_set(&object, "facesFound", faces_found as f64);
     js_set(&object, "frames", rate.frames as f64);
     js_set(&object, "clipFrames", clip_frames as f64);
     js_set(&object, "wallSeconds", rate.wall_seconds);

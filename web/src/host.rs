@@ -5,7 +5,9 @@
 
 use std::cell::RefCell;
 use std::rc::Rc;
-use tracking::bundle::NamedBytes;
+use std::sync::Arc;
+use tracking::bundle::NetworkBytes;
+use tracking::pipeline::LocatorChoice;
 
 use image::RgbImage;
 use likeness::web_host::{CameraFrame, PickedFile, VideoFrames, WebHost};
@@ -14,7 +16,7 @@ use wasm_bindgen::prelude::*;
 use wasm_bindgen_futures::JsFuture;
 
 use crate::page::js_error;
-use crate::worker::LocatorWorker;
+use crate::worker::{LocatorWorker, WorkerFiles};
 
 /// Frame rate assumed for video files: the browser does not tell a file's own.
 const VIDEO_FPS: f64 = 30.0;
@@ -32,22 +34,73 @@ pub struct PageHost {
     picked: Rc<RefCell<Vec<PickedFile>>>,
     video: Rc<RefCell<Option<VideoFrames>>>,
     camera: Rc<RefCell<Camera>>,
-    /// The OpenSeeFace detector and landmark network, for the face-locating worker.
-    openseeface: Option<(NamedBytes, NamedBytes)>,
-    /// The worker, started by the first job that asks for it; why it could not start, if
-    /// it could not (it is not tried again: jobs then locate faces on the page's thread).
-    locator: RefCell<Option<Result<Rc<LocatorWorker>, String>>>,
+    /// The networks, whose locator models the face-locating worker gets.
+    networks: Option<Arc<NetworkBytes>>,
+    /// Which Face Mesh points make the 68 landmarks
+    /// ([`tracking::mediapipe::ibug68_points_to_f32s`]): the worker has no template to work
+    /// them out; `None` without MediaPipe's models.
+    mediapipe_points: Option<Vec<f32>>,
+    /// The worker of the locator the last job asked for, started then; or why it could not
+    /// start (it is not tried again for that locator: jobs then locate faces on the page's
+    /// thread). A job that asks for the other locator replaces it (a job still using it
+    /// keeps it alive until it ends): one worker at a time, as the page has one core to
+    /// spare.
+    locator: RefCell<Option<LocatorSlot>>,
+}
+
+/// The locator worker a [`PageHost`] keeps, for the locator it runs.
+type LocatorSlot = (WorkerKind, Result<Rc<LocatorWorker>, String>);
+
+/// Which locator a worker runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WorkerKind {
+    OpenSeeFace,
+    MediaPipe,
 }
 
 impl PageHost {
-    pub fn new(openseeface: Option<(NamedBytes, NamedBytes)>) -> Self {
+    /// The host for `networks`; `template` places MediaPipe's 68 points.
+    pub fn new(networks: Option<Arc<NetworkBytes>>, template: &face::Template) -> Self {
+        let mediapipe_points = networks
+            .as_ref()
+            .and_then(|n| n.mediapipe.as_ref())
+            .and_then(|m| match m.correspondence.ibug68_points(template) {
+                Ok(points) => Some(tracking::mediapipe::ibug68_points_to_f32s(&points)),
+                Err(e) => {
+                    tracing::warn!("no MediaPipe worker: {e}");
+                    None
+                }
+            });
         Self {
             picked: Rc::default(),
             video: Rc::default(),
             camera: Rc::default(),
-            openseeface,
+            networks,
+            mediapipe_points,
             locator: RefCell::new(None),
         }
+    }
+
+    /// The files a worker running `kind` starts from; `None` when the page lacks them.
+    fn worker_files(&self, kind: WorkerKind) -> Option<WorkerFiles> {
+        let networks = self.networks.as_ref()?;
+        Some(match kind {
+            WorkerKind::OpenSeeFace => {
+                let (detector, landmarks) = networks.openseeface.as_ref()?;
+                WorkerFiles::OpenSeeFace {
+                    detector: detector.bytes.clone(),
+                    landmarks: landmarks.bytes.clone(),
+                }
+            }
+            WorkerKind::MediaPipe => {
+                let mediapipe = networks.mediapipe.as_ref()?;
+                WorkerFiles::MediaPipe {
+                    detector: mediapipe.detector.bytes.clone(),
+                    mesh: mediapipe.mesh.bytes.clone(),
+                    points: self.mediapipe_points.clone()?,
+                }
+            }
+        })
     }
 }
 
@@ -223,7 +276,7 @@ impl PageHost {
     /// The face-locating worker: `None` before a job asked for it, then whether it runs
     /// or why it stopped.
     pub fn worker_state(&self) -> Option<Result<(), String>> {
-        match self.locator.borrow().as_ref()? {
+        match &self.locator.borrow().as_ref()?.1 {
             Ok(worker) => Some(worker.failed().map_or(Ok(()), Err)),
             Err(reason) => Some(Err(reason.clone())),
         }
@@ -231,21 +284,28 @@ impl PageHost {
 }
 
 impl WebHost for PageHost {
-    fn face_locator(&self) -> Option<Box<dyn likeness::stepped::RemoteFaceLocator>> {
+    fn face_locator(
+        &self,
+        locator: LocatorChoice,
+    ) -> Option<Box<dyn likeness::stepped::RemoteFaceLocator>> {
+        let kind = match locator {
+            LocatorChoice::PreCropped => return None,
+            LocatorChoice::MediaPipe => WorkerKind::MediaPipe,
+            LocatorChoice::Landmarks | LocatorChoice::Auto => WorkerKind::OpenSeeFace,
+        };
         let mut slot = self.locator.borrow_mut();
-        if slot.is_none() {
-            let (detector, landmarks) = self.openseeface.as_ref()?;
-            let started = LocatorWorker::start(&detector.bytes, &landmarks.bytes);
+        if slot.as_ref().is_none_or(|(running, _)| *running != kind) {
+            let started = LocatorWorker::start(self.worker_files(kind)?);
             if let Err(e) = &started {
                 tracing::warn!(
                     "no face-locating worker ({e}); faces are located on the page's thread"
                 );
             }
-            *slot = Some(started.map(Rc::new));
+            *slot = Some((kind, started.map(Rc::new)));
         }
         // A worker that stopped, or never started, stays so: jobs locate faces here.
         match slot.as_ref()? {
-            Ok(worker) if worker.failed().is_none() => Some(Box::new(worker.channel())),
+            (_, Ok(worker)) if worker.failed().is_none() => Some(Box::new(worker.channel())),
             _ => None,
         }
     }

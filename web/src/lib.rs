@@ -40,6 +40,9 @@ pub enum Source {
     FaceKit,
     /// OpenSeeFace's models (BSD-2): not redistributed by the project.
     OpenSeeFace,
+    /// MediaPipe's models (Apache-2.0) and their ICT correspondence: not redistributed by
+    /// the project.
+    MediaPipe,
     /// Made by the project's own code, in the repository's `assets/`.
     Project,
 }
@@ -79,6 +82,21 @@ pub const LANDMARKS: Asset = Asset {
     what: "the OpenSeeFace landmark network (tract variant)",
     source: Source::OpenSeeFace,
 };
+pub const MEDIAPIPE_DETECTOR: Asset = Asset {
+    url: "mediapipe/face_detection_short_range.onnx",
+    what: "MediaPipe's BlazeFace face detector",
+    source: Source::MediaPipe,
+};
+pub const MEDIAPIPE_MESH: Asset = Asset {
+    url: "mediapipe/face_landmark.onnx",
+    what: "MediaPipe's Face Mesh",
+    source: Source::MediaPipe,
+};
+pub const MEDIAPIPE_CORRESPONDENCE: Asset = Asset {
+    url: "mediapipe/ict_correspondence.json",
+    what: "the ICT vertex under each Face Mesh point",
+    source: Source::MediaPipe,
+};
 pub const DEMO_PUPPET: Asset = Asset {
     url: "puppets/pip.glb",
     what: "the demo puppet",
@@ -96,6 +114,27 @@ pub const REQUIRED_ASSETS: [Asset; 8] = [
     DEMO_PUPPET,
     TEMPLATE,
 ];
+
+/// Fetched when the served directory has them: MediaPipe's face locator (File > Face
+/// locator), offered only when all three are there.
+pub const OPTIONAL_ASSETS: [Asset; 3] =
+    [MEDIAPIPE_DETECTOR, MEDIAPIPE_MESH, MEDIAPIPE_CORRESPONDENCE];
+
+/// The page's note (in the console) when optional files are absent: what is not offered and
+/// where to get the files.
+pub fn optional_missing_note(missing: &[Asset]) -> String {
+    let names: Vec<&str> = missing.iter().map(|a| a.url).collect();
+    format!(
+        "MediaPipe's face locator is not offered: the served directory lacks {}. {}",
+        names.join(", "),
+        MEDIAPIPE_SOURCE
+    )
+}
+
+const MEDIAPIPE_SOURCE: &str = "MediaPipe's models (Apache-2.0: the PyPI wheel \
+    mediapipe==0.10.14, face_detection_short_range.tflite and face_landmark.tflite converted \
+    to ONNX as shared/models/README.md describes) and ict_correspondence.json go in a folder \
+    named by LIKENESS_MODELS=DIR (with a subfolder mediapipe/).";
 
 /// The page's message when files are absent: what each is and where to get it.
 pub fn missing_message(missing: &[Asset]) -> String {
@@ -122,6 +161,10 @@ pub fn missing_message(missing: &[Asset]) -> String {
              shared/models/README.md) go in a folder named by LIKENESS_MODELS=DIR (with a \
              subfolder openseeface/).",
         );
+    }
+    if has(Source::MediaPipe) {
+        text.push(' ');
+        text.push_str(MEDIAPIPE_SOURCE);
     }
     if has(Source::Project) {
         text.push_str(
@@ -168,15 +211,25 @@ mod tests {
     use super::*;
 
     #[test]
-    fn every_required_asset_is_distinct_and_relative() {
-        for (i, a) in REQUIRED_ASSETS.iter().enumerate() {
+    fn every_asset_is_distinct_and_relative() {
+        let all: Vec<Asset> = REQUIRED_ASSETS.into_iter().chain(OPTIONAL_ASSETS).collect();
+        for (i, a) in all.iter().enumerate() {
             assert!(
                 !a.url.starts_with('/') && !a.url.contains(".."),
                 "{}",
                 a.url
             );
-            assert!(REQUIRED_ASSETS[i + 1..].iter().all(|b| b.url != a.url));
+            assert!(all[i + 1..].iter().all(|b| b.url != a.url));
         }
+    }
+
+    #[test]
+    fn the_optional_note_names_the_missing_mediapipe_files_and_where_to_get_them() {
+        let text = optional_missing_note(&[MEDIAPIPE_MESH, MEDIAPIPE_CORRESPONDENCE]);
+        assert!(text.contains("mediapipe/face_landmark.onnx"));
+        assert!(text.contains("mediapipe/ict_correspondence.json"));
+        assert!(!text.contains("face_detection_short_range.onnx,"));
+        assert!(text.contains("mediapipe==0.10.14") && text.contains("LIKENESS_MODELS"));
     }
 
     #[test]

@@ -16,7 +16,9 @@ use wasm_bindgen_futures::JsFuture;
 
 use crate::bench::BenchState;
 use crate::host::PageHost;
-use crate::{Asset, Fetched, REQUIRED_ASSETS, missing_message};
+use crate::{
+    Asset, Fetched, OPTIONAL_ASSETS, REQUIRED_ASSETS, missing_message, optional_missing_note,
+};
 
 /// `window.likeness`: what the page reports, read by people (the status line) and by the
 /// end-to-end test.
@@ -153,6 +155,17 @@ async fn run(report: &Report) -> Result<(), String> {
     if !missing.is_empty() {
         return Err(missing_message(&missing));
     }
+    let mut optional_missing = Vec::new();
+    for asset in OPTIONAL_ASSETS {
+        report.status(&format!("loading {}...", asset.url), false);
+        match fetch_bytes(asset.url).await? {
+            Some(bytes) => fetched.insert(asset, bytes),
+            None => optional_missing.push(asset),
+        }
+    }
+    if !optional_missing.is_empty() {
+        tracing::info!("{}", optional_missing_note(&optional_missing));
+    }
     report.set("assetsMs", now_ms());
     report.status("reading the face template...", false);
     // The status line is drawn before the long synchronous step.
@@ -166,7 +179,14 @@ async fn run(report: &Report) -> Result<(), String> {
         .and_then(|e| e.dyn_into::<web_sys::HtmlCanvasElement>().ok())
         .ok_or("the page has no <canvas id=\"likeness\">")?;
     let puppet = fetched.take(&crate::DEMO_PUPPET);
-    let openseeface = scene.networks.as_ref().and_then(|n| n.openseeface.clone());
+    report.set(
+        "mediapipeLocator",
+        scene
+            .networks
+            .as_ref()
+            .is_some_and(|n| n.mediapipe.is_some()),
+    );
+    let page_networks = scene.networks.clone();
     let runner = eframe::WebRunner::new();
     let options = eframe::WebOptions::default();
     let scene = Arc::new(scene);
@@ -178,7 +198,7 @@ async fn run(report: &Report) -> Result<(), String> {
             options,
             Box::new(move |cc| {
                 let mut studio = StudioApp::new(cc, scene.clone());
-                let page_host = Rc::new(PageHost::new(openseeface));
+                let page_host = Rc::new(PageHost::new(page_networks, &scene.model.template));
                 let host: Rc<dyn WebHost> = page_host.clone();
                 studio.web_host = Some(host.clone());
                 let bench = Rc::new(RefCell::new(BenchState::default()));
@@ -239,6 +259,7 @@ fn make_scene(fetched: &mut Fetched) -> Result<Scene, String> {
         .map_err(|_| format!("{}: not UTF-8 text", crate::MANIFEST.url))?;
     let manifest = tracking::networks::Manifest::from_json(Path::new("models"), &manifest_text)
         .map_err(|e| e.to_string())?;
+    let mediapipe = mediapipe_bytes(fetched, &template);
     let mut named = |asset: &Asset| -> Result<NamedBytes, String> {
         let bytes = fetched
             .take(asset)
@@ -250,11 +271,42 @@ fn make_scene(fetched: &mut Fetched) -> Result<Scene, String> {
         model_net: named(&crate::MODEL_NET)?,
         mean_albedo: named(&crate::MEAN_ALBEDO)?,
         openseeface: Some((named(&crate::DETECTOR)?, named(&crate::LANDMARKS)?)),
+        mediapipe,
         manifest,
     };
     let mut scene = Scene::from_template(template);
     scene.networks = Some(Arc::new(networks));
     Ok(scene)
+}
+
+/// MediaPipe's locator when all its files were fetched and fit the template; otherwise
+/// `None` (said in the console): the studio then offers OpenSeeFace's only.
+fn mediapipe_bytes(
+    fetched: &mut Fetched,
+    template: &face::Template,
+) -> Option<tracking::bundle::MediaPipeBytes> {
+    let mut take = |asset: &Asset| {
+        fetched
+            .take(asset)
+            .map(|bytes| NamedBytes::new(asset.url, bytes))
+    };
+    let detector = take(&crate::MEDIAPIPE_DETECTOR)?;
+    let mesh = take(&crate::MEDIAPIPE_MESH)?;
+    let correspondence = take(&crate::MEDIAPIPE_CORRESPONDENCE)?;
+    let checked = tracking::bundle::MediaPipeBytes::from_bytes(detector, mesh, &correspondence)
+        .and_then(|bytes| {
+            // The worker gets these points; a correspondence that does not fit the template
+            // is refused here, once, rather than on the first frame.
+            bytes.correspondence.ibug68_points(template)?;
+            Ok(bytes)
+        });
+    match checked {
+        Ok(bytes) => Some(bytes),
+        Err(e) => {
+            tracing::warn!("MediaPipe's face locator is not offered: {e}");
+            None
+        }
+    }
 }
 
 /// Mean milliseconds per frame in each stage of tracking.

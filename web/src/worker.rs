@@ -1,9 +1,10 @@
-//! The face-locating Web Worker: OpenSeeFace's detector and landmarks run in a second
-//! instance of this wasm module (`worker.js` loads it) while the page's thread crops, runs
-//! TrackNet and refines the frame before, so the two halves of a frame overlap on two
-//! cores as the native pipeline's threads do. wasm32 without shared memory has no threads,
-//! and a worker is how a page gets a second core; frames go over as transferred buffers
-//! and located faces come back as numbers ([`LocatedFace::to_f32s`]).
+//! The face-locating Web Worker: the face locator (OpenSeeFace's detector and landmarks, or
+//! MediaPipe's BlazeFace and Face Mesh) runs in a second instance of this wasm module
+//! (`worker.js` loads it) while the page's thread crops, runs TrackNet and refines the
+//! frame before, so the two halves of a frame overlap on two cores as the native
+//! pipeline's threads do. wasm32 without shared memory has no threads, and a worker is how
+//! a page gets a second core; frames go over as transferred buffers and located faces come
+//! back as numbers ([`LocatedFace::to_f32s`]).
 //!
 //! Page side: [`LocatorWorker`] starts the worker and hands each job a [`WorkerChannel`]
 //! (the app's [`RemoteFaceLocator`]). Worker side: [`FaceLocatorWorker`], called by
@@ -12,11 +13,13 @@
 use std::cell::RefCell;
 use std::collections::{HashMap, VecDeque};
 use std::rc::Rc;
+use std::sync::Arc;
 
 use image::RgbImage;
 use likeness::stepped::{LocatorReply, RemoteFaceLocator};
 use tracking::TrackingError;
 use tracking::bundle::NamedBytes;
+use tracking::mediapipe::MeshFollower;
 use tracking::openseeface::FaceFollower;
 use tracking::pipeline::LocatedFace;
 use wasm_bindgen::JsCast;
@@ -29,23 +32,53 @@ const WORKER_URL: &str = "./worker.js";
 
 // --- worker side ---------------------------------------------------------------------------
 
-/// OpenSeeFace following one face, frame after frame, in the worker.
+/// Boxed: the two followers differ a lot in size and a worker holds one.
+enum Follower {
+    OpenSeeFace(Box<FaceFollower>),
+    MediaPipe(Box<MeshFollower>),
+}
+
+/// A face locator following one face, frame after frame, in the worker.
 #[wasm_bindgen]
 pub struct FaceLocatorWorker {
-    follower: FaceFollower,
+    follower: Follower,
+}
+
+fn js(error: impl std::fmt::Display) -> JsError {
+    JsError::new(&error.to_string())
 }
 
 #[wasm_bindgen]
 impl FaceLocatorWorker {
-    /// The follower from the `_plain_b1` detector and landmark network's bytes.
+    /// OpenSeeFace's follower from the `_plain_b1` detector and landmark network's bytes.
     #[wasm_bindgen(constructor)]
     pub fn new(detector: Vec<u8>, landmarks: Vec<u8>) -> Result<FaceLocatorWorker, JsError> {
         console_error_panic_hook::set_once();
         let detector = NamedBytes::new(crate::DETECTOR.url, detector);
         let landmarks = NamedBytes::new(crate::LANDMARKS.url, landmarks);
-        let follower = tracking::bundle::face_follower(&detector, &landmarks)
-            .map_err(|e| JsError::new(&e.to_string()))?;
-        Ok(Self { follower })
+        let follower = tracking::bundle::face_follower(&detector, &landmarks).map_err(js)?;
+        Ok(Self {
+            follower: Follower::OpenSeeFace(Box::new(follower)),
+        })
+    }
+
+    /// MediaPipe's follower from BlazeFace's and Face Mesh's bytes; `points`: which Face
+    /// Mesh points make the 68 landmarks
+    /// ([`tracking::mediapipe::ibug68_points_to_f32s`], worked out by the page, which has the
+    /// template).
+    pub fn mediapipe(
+        detector: Vec<u8>,
+        mesh: Vec<u8>,
+        points: Vec<f32>,
+    ) -> Result<FaceLocatorWorker, JsError> {
+        console_error_panic_hook::set_once();
+        let detector = NamedBytes::new(crate::MEDIAPIPE_DETECTOR.url, detector);
+        let mesh = NamedBytes::new(crate::MEDIAPIPE_MESH.url, mesh);
+        let points = tracking::mediapipe::ibug68_points_from_f32s(&points).map_err(js)?;
+        let follower = tracking::bundle::mesh_follower(&detector, &mesh, points).map_err(js)?;
+        Ok(Self {
+            follower: Follower::MediaPipe(Box::new(follower)),
+        })
     }
 
     /// The face in the next frame (`width` x `height` RGB bytes) as
@@ -59,8 +92,7 @@ impl FaceLocatorWorker {
         height: u32,
         reset: bool,
     ) -> Result<Option<Vec<f32>>, JsError> {
-        tracking::source::check_frame_size(width, height)
-            .map_err(|e| JsError::new(&e.to_string()))?;
+        tracking::source::check_frame_size(width, height).map_err(js)?;
         let got = rgb.len();
         let image = RgbImage::from_raw(width, height, rgb).ok_or_else(|| {
             let needed = u64::from(width) * u64::from(height) * 3;
@@ -68,16 +100,42 @@ impl FaceLocatorWorker {
                 "a {width}x{height} RGB frame has {needed} bytes, not {got}"
             ))
         })?;
-        if reset {
-            self.follower.reset();
-        }
-        LocatedFace::follow(&mut self.follower, &image)
+        let located = match &mut self.follower {
+            Follower::OpenSeeFace(follower) => {
+                if reset {
+                    follower.reset();
+                }
+                LocatedFace::follow(follower, &image)
+            }
+            Follower::MediaPipe(follower) => {
+                if reset {
+                    follower.reset();
+                }
+                LocatedFace::follow_mesh(follower, &image)
+            }
+        };
+        located
             .map(|found| found.map(|face| face.to_f32s()))
-            .map_err(|e| JsError::new(&e.to_string()))
+            .map_err(js)
     }
 }
 
 // --- page side -----------------------------------------------------------------------------
+
+/// What a worker starts from.
+pub enum WorkerFiles {
+    /// OpenSeeFace's `_plain_b1` detector and landmark network.
+    OpenSeeFace {
+        detector: Arc<[u8]>,
+        landmarks: Arc<[u8]>,
+    },
+    /// BlazeFace, Face Mesh and which points make the 68 landmarks.
+    MediaPipe {
+        detector: Arc<[u8]>,
+        mesh: Arc<[u8]>,
+        points: Vec<f32>,
+    },
+}
 
 /// Answers from the worker, sorted by job.
 #[derive(Default)]
@@ -101,8 +159,8 @@ fn get(object: &JsValue, key: &str) -> JsValue {
 }
 
 impl LocatorWorker {
-    /// Starts `worker.js` with this page's wasm module and the OpenSeeFace models.
-    pub fn start(detector: &[u8], landmarks: &[u8]) -> Result<Self, String> {
+    /// Starts `worker.js` with this page's wasm module and a locator's files.
+    pub fn start(files: WorkerFiles) -> Result<Self, String> {
         let options = web_sys::WorkerOptions::new();
         options.set_type(web_sys::WorkerType::Module);
         let worker = web_sys::Worker::new_with_options(WORKER_URL, &options)
@@ -135,8 +193,26 @@ impl LocatorWorker {
         let init = js_sys::Object::new();
         js_set(&init, "kind", "init");
         js_set(&init, "module", wasm_bindgen::module());
-        js_set(&init, "detector", js_sys::Uint8Array::from(detector));
-        js_set(&init, "landmarks", js_sys::Uint8Array::from(landmarks));
+        match &files {
+            WorkerFiles::OpenSeeFace {
+                detector,
+                landmarks,
+            } => {
+                js_set(&init, "locator", "openseeface");
+                js_set(&init, "detector", js_sys::Uint8Array::from(&detector[..]));
+                js_set(&init, "landmarks", js_sys::Uint8Array::from(&landmarks[..]));
+            }
+            WorkerFiles::MediaPipe {
+                detector,
+                mesh,
+                points,
+            } => {
+                js_set(&init, "locator", "mediapipe");
+                js_set(&init, "detector", js_sys::Uint8Array::from(&detector[..]));
+                js_set(&init, "mesh", js_sys::Uint8Array::from(&mesh[..]));
+                js_set(&init, "points", js_sys::Float32Array::from(&points[..]));
+            }
+        }
         worker
             .post_message(&init)
             .map_err(|e| format!("the face-locating worker: {}", js_error(&e)))?;

@@ -108,7 +108,8 @@ async function dropFiles(page, files) {
 // Where the studio's controls are at 1280x720 (egui lays them out the same every run).
 const FILE_MENU = [25, 12];
 const MENU_RECORD_WEBCAM = [79, 62];
-const MENU_SAVE_SESSION = [52, 94];
+// Below Record from webcam, Face locator (the page serves MediaPipe's models) and a separator.
+const MENU_SAVE_SESSION = [52, 116];
 const STOP_RECORDING = [1061, 600];
 const PUPPET_TAB = [533, 12];
 const EXPORTS = [
@@ -263,6 +264,22 @@ async function demoRun(browser, media) {
     }
     const bench = [...runs].sort((a, b) => a.fps - b.fps)[1];
     console.log(`     tracking in the page: ${bench.fps.toFixed(1)} fps, the median of ${runs.map((b) => b.fps.toFixed(1)).join(", ")} (goal >= 30 fps: ${bench.fps >= 30 ? "met" : "NOT met"})`);
+    // The same clip with MediaPipe's BlazeFace and Face Mesh in the worker (the page offers
+    // it when the served folder has mediapipe/).
+    check(ready.mediapipeLocator === true, `the page offers MediaPipe's locator (${ready.mediapipeLocator})`);
+    const meshRuns = [];
+    for (let run = 0; run < 3; run += 1) {
+      const b = await page.evaluate(() => window.likeness.benchTracking("mediapipe"));
+      check(b.locator === "mediapipe" && b.frames === 96 && b.locatedInWorker,
+        `MediaPipe benchmark ${run + 1}: ${b.frames} of ${b.clipFrames} frames in ${b.wallSeconds.toFixed(2)} s (${b.fps.toFixed(1)} fps), in the worker: ${b.locatedInWorker}`);
+      meshRuns.push(b);
+    }
+    const meshBench = [...meshRuns].sort((a, b) => a.fps - b.fps)[1];
+    check(meshBench.facesFound >= bench.facesFound && meshBench.facesFound >= 90,
+      `MediaPipe finds the face in ${meshBench.facesFound} of 96 frames (OpenSeeFace: ${bench.facesFound})`);
+    console.log(`     tracking in the page with MediaPipe: ${meshBench.fps.toFixed(1)} fps, the median of ${meshRuns.map((b) => b.fps.toFixed(1)).join(", ")}`);
+    const refused = await page.evaluate(() => window.likeness.benchTracking("dlib").then(() => "", (e) => String(e.message)));
+    check(/openseeface.*mediapipe.*"dlib"/.test(refused), `an unknown locator is refused by name ("${refused}")`);
     const resumed = await waitFor(page, (s) => s.frames > framesBefore + 5, 60_000, "the studio to draw again");
     check(resumed.frames > framesBefore, "the studio draws again after the benchmark");
     await visitorRun(page, media);
@@ -286,6 +303,11 @@ async function demoRun(browser, media) {
       benchFrames: bench.frames,
       benchWallSeconds: bench.wallSeconds,
       benchStageMs: bench.stageMs,
+      meshBenchFps: meshBench.fps,
+      meshBenchRunsFps: meshRuns.map((b) => b.fps),
+      meshBenchStageMs: meshBench.stageMs,
+      meshFacesFound: meshBench.facesFound,
+      facesFound: bench.facesFound,
     };
   } catch (e) {
     console.log(console_.slice(-40).join("\n"));
@@ -430,11 +452,18 @@ console.log("| wasm | wasm gzipped | assets fetched | template read | first fram
 console.log("|---|---|---|---|---|---|---|---|");
 console.log(`| ${mb(budgets.wasmBytes)} MB | ${mb(budgets.wasmGzipBytes)} MB | ${s(budgets.assetsMs)} s | ${s(budgets.sceneMs)} s | ${s(budgets.firstFrameMs)} s | ${s(budgets.demoReadyMs)} s | ${Number(budgets.benchFps).toFixed(1)} (${budgets.benchFrames} / ${Number(budgets.benchWallSeconds).toFixed(2)}) | ${Number(budgets.trackingWallFps).toFixed(1)} |`);
 console.log(`\nTracking rate with the worker / on the page's thread alone (same run, same clip): ${Number(budgets.benchFps).toFixed(1)} / ${Number(budgets.benchPageThreadOnlyFps).toFixed(1)} fps = ${(budgets.benchFps / budgets.benchPageThreadOnlyFps).toFixed(2)}x`);
-const stages = budgets.benchStageMs || {};
+console.log(`Tracking rate with the worker, OpenSeeFace / MediaPipe (same run, same clip): ${Number(budgets.benchFps).toFixed(1)} / ${Number(budgets.meshBenchFps).toFixed(1)} fps; faces found ${budgets.facesFound} / ${budgets.meshFacesFound} of 96`);
 console.log("\nTime per frame in each stage (ms, mean over the demo clip; detect and landmarks in the worker, the rest on the page's thread):");
-console.log("| " + Object.keys(stages).join(" | ") + " |");
-console.log("|" + Object.keys(stages).map(() => "---|").join(""));
-console.log("| " + Object.values(stages).map((v) => Number(v).toFixed(2)).join(" | ") + " |");
+{
+  const rows = [["OpenSeeFace", budgets.benchStageMs || {}], ["MediaPipe", budgets.meshBenchStageMs || {}]];
+  // One table: the stages of both locators, in the order the first names them.
+  const stageNames = [...new Set(rows.flatMap(([, stages]) => Object.keys(stages)))];
+  console.log("| locator | " + stageNames.join(" | ") + " |");
+  console.log("|---|" + stageNames.map(() => "---|").join(""));
+  for (const [name, stages] of rows) {
+    console.log(`| ${name} | ` + stageNames.map((k) => (k in stages ? Number(stages[k]).toFixed(2) : "")).join(" | ") + " |");
+  }
+}
 fs.writeFileSync(path.join(out, "budgets.json"), JSON.stringify(budgets, null, 2));
 if (failures > 0) {
   console.log(`\n${failures} check(s) failed`);
