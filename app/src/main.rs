@@ -204,6 +204,12 @@ struct TrackingArgs {
     /// models; the output's settings say `"locator": "precropped"`).
     #[arg(long, default_value = "auto")]
     locator: String,
+    /// Do not search with RetinaFace when the locator's fast detector finds no face
+    /// (close-ups, small or grey faces). It runs on ONNX Runtime only, from
+    /// retinaface_640x640_opt.onnx beside the OpenSeeFace models; without either, tracking
+    /// goes on without it.
+    #[arg(long)]
+    no_fallback_detector: bool,
     /// Folder of the locator's models: OpenSeeFace's (mnv3_detection_opt.onnx and
     /// lm_model0_opt.onnx for ONNX Runtime; the *_plain_b1.onnx rewrites for tract), or
     /// with --locator mediapipe MediaPipe's (face_detection_short_range.onnx,
@@ -237,6 +243,7 @@ impl TrackingArgs {
             threads: self.threads.clamp(1, 64),
             locator: self.locator.parse()?,
             fov_deg: likeness::track_cli::parse_fov(self.fov)?,
+            fallback_detector: !self.no_fallback_detector,
             ..TrackerConfig::default()
         };
         if let Some(dir) = &self.networks {

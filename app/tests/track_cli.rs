@@ -324,3 +324,46 @@ fn track_a_close_up_with_the_mediapipe_locator() {
         "{message}"
     );
 }
+
+/// The close-up OpenSeeFace's detector misses is found with OpenSeeFace's locator through
+/// the fallback detector (RetinaFace); `--no-fallback-detector` turns it off, and the
+/// no-face record then says how to get it back (issue 32, item 7).
+#[test]
+fn the_fallback_detector_finds_the_close_up_and_can_be_turned_off() {
+    let dir = out_dir("fallback");
+    let still = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/testdata/faces/openseeface-raw1.png");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.join(name);
+        let mut args = vec![
+            "track",
+            still.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--locator",
+            "openseeface",
+            "--backend",
+            "onnxruntime",
+            "--quiet",
+        ];
+        args.extend_from_slice(extra);
+        let o = likeness(&args);
+        assert!(o.status.success(), "{}", text(&o));
+        json(&out)
+    };
+    let with = run("with.json", &[]);
+    assert_eq!(
+        with["frames"][0]["face"],
+        serde_json::json!(true),
+        "{}",
+        with["frames"][0]
+    );
+    let without = run("without.json", &["--no-fallback-detector"]);
+    let frame = &without["frames"][0];
+    assert_eq!(frame["face"], serde_json::json!(false), "{frame}");
+    let note = frame["note"].as_str().unwrap_or_default();
+    assert!(
+        note.contains("RetinaFace") && note.contains("mediapipe"),
+        "{note}"
+    );
+}

@@ -3,7 +3,8 @@
 //! Owns embedded inference of the project's TrackNet and ModelNet (ONNX Runtime through
 //! `ort` natively, tract in pure Rust for wasm32 and as the fallback), the preprocessing
 //! the training code used, real-footage face detection and landmarks (OpenSeeFace's 66
-//! points; MediaPipe's BlazeFace and 468-point Face Mesh), test-time refinement, temporal
+//! points; MediaPipe's BlazeFace and 468-point Face Mesh; RetinaFace as the fallback
+//! detector), test-time refinement, temporal
 //! smoothing, frame selection for personalization, footage sources and the per-frame
 //! tracking records.
 //!
@@ -28,6 +29,7 @@ pub mod personalize;
 pub mod pipeline;
 pub mod record;
 pub mod refine;
+pub mod retinaface;
 pub mod select;
 pub mod session;
 pub mod smooth;

@@ -603,11 +603,20 @@ pub struct FollowResult {
 /// face is lost: the landmarks' mean confidence falls below a threshold, or their box is
 /// degenerate or leaves the frame. Of several detected faces it follows the largest
 /// ([`largest_face`]).
+///
+/// With a fallback detector ([`FaceFollower::with_fallback`]), a frame OpenSeeFace's
+/// detector finds no usable face in is searched by RetinaFace (close-ups that fill the
+/// frame, small or grey faces); after a search that found nothing it waits
+/// [`crate::retinaface::FALLBACK_SEARCH_INTERVAL`] frames before the next, so footage
+/// without a face does not pay for it on every frame.
 pub struct FaceFollower {
     tracker: OpenSeeFace,
     min_landmark_confidence: f32,
     previous_box: Option<Rect>,
     last_timings: StepTimings,
+    fallback: Option<crate::retinaface::RetinaFace>,
+    /// Frames before the fallback may search again.
+    fallback_wait: usize,
 }
 
 impl FaceFollower {
@@ -617,7 +626,20 @@ impl FaceFollower {
             min_landmark_confidence: DEFAULT_MIN_LANDMARK_CONFIDENCE,
             previous_box: None,
             last_timings: StepTimings::default(),
+            fallback: None,
+            fallback_wait: 0,
         }
+    }
+
+    /// Searches with `detector` when OpenSeeFace's detector finds no usable face.
+    pub fn with_fallback(mut self, detector: crate::retinaface::RetinaFace) -> Self {
+        self.fallback = Some(detector);
+        self
+    }
+
+    /// Whether a fallback detector is set.
+    pub fn has_fallback(&self) -> bool {
+        self.fallback.is_some()
     }
 
     /// Sets the mean landmark confidence below which the face counts as lost (default
@@ -654,6 +676,7 @@ impl FaceFollower {
     pub fn reset(&mut self) {
         self.previous_box = None;
         self.last_timings = StepTimings::default();
+        self.fallback_wait = 0;
     }
 
     /// The face in the next frame of the video, or `None` if the frame shows none.
@@ -697,7 +720,39 @@ impl FaceFollower {
         let mut detections = self.tracker.detect(image)?;
         timings.detect_ms = elapsed_ms(started);
         detections.retain(|d| landmark_crop(d.face_box, width, height).is_some());
-        let Some(detection) = largest_face(&detections) else {
+        if let Some(found) = self.landmarks_on(image, &detections, timings)? {
+            return Ok(Some(found));
+        }
+        let Some(fallback) = self.fallback.as_mut() else {
+            return Ok(None);
+        };
+        if self.fallback_wait > 0 {
+            self.fallback_wait -= 1;
+            return Ok(None);
+        }
+        let started = Instant::now();
+        let mut detections: Vec<FaceDetection> = fallback
+            .detect(image)?
+            .iter()
+            .map(crate::retinaface::RetinaDetection::to_openseeface)
+            .collect();
+        timings.detect_ms += elapsed_ms(started);
+        detections.retain(|d| landmark_crop(d.face_box, width, height).is_some());
+        let found = self.landmarks_on(image, &detections, timings)?;
+        if found.is_none() {
+            self.fallback_wait = crate::retinaface::FALLBACK_SEARCH_INTERVAL;
+        }
+        Ok(found)
+    }
+
+    /// The landmarks of the largest of `detections`, if they are confident enough.
+    fn landmarks_on(
+        &mut self,
+        image: &RgbImage,
+        detections: &[FaceDetection],
+        timings: &mut StepTimings,
+    ) -> Result<Option<FollowResult>> {
+        let Some(detection) = largest_face(detections) else {
             return Ok(None);
         };
         let started = Instant::now();

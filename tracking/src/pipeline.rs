@@ -80,6 +80,9 @@ pub struct TrackerConfig {
     /// `None`: TrackNet's output as is.
     pub refine: Option<RefineConfig>,
     pub smoothing: SmoothingConfig,
+    /// Whether the footage locators search with RetinaFace when their fast detector finds
+    /// no face (ONNX Runtime only; its file missing is a warning, not an error).
+    pub fallback_detector: bool,
 }
 
 impl Default for TrackerConfig {
@@ -95,6 +98,7 @@ impl Default for TrackerConfig {
             fov_deg: None,
             refine: Some(RefineConfig::default()),
             smoothing: SmoothingConfig::default(),
+            fallback_detector: true,
         }
     }
 }
@@ -313,19 +317,34 @@ impl Locator {
             Locator::Landmarks(f) => format!(
                 "no face found: OpenSeeFace's detector found none at confidence >= {} (and a \
                  face followed from the previous frame, if any, was lost: its landmarks' mean \
-                 confidence fell below {}); a face much smaller than a tenth of the frame, \
-                 turned past profile or filling the whole frame can be missed (--locator \
-                 mediapipe finds close-ups)",
+                 confidence fell below {}); {}",
                 f.tracker().detection_threshold(),
-                f.min_landmark_confidence()
+                f.min_landmark_confidence(),
+                if f.has_fallback() {
+                    "RetinaFace, searching when it finds none (at most every 15 frames \
+                     after a miss), found none either; a face smaller than about a twelfth of \
+                     the frame's height or turned past profile can be missed (--locator \
+                     mediapipe also searches tiles of the frame for small faces)"
+                } else {
+                    "without the fallback detector (RetinaFace: ONNX Runtime and \
+                     retinaface_640x640_opt.onnx beside the OpenSeeFace models), a face much \
+                     smaller than a tenth of the frame, turned past profile or filling the \
+                     whole frame can be missed (--locator mediapipe finds close-ups)"
+                }
             ),
             Locator::Mesh(f) => format!(
                 "no face found: MediaPipe's BlazeFace found none scoring >= {} (and a face \
                  followed from the previous frame, if any, was lost: Face Mesh's presence fell \
-                 below {}); BlazeFace's short-range model finds faces within about 2 m of the \
-                 camera, so a face much smaller than a tenth of the frame can be missed",
+                 below {}); {}BlazeFace on tiles of the frame found none either (at most every \
+                 15 frames after a miss), so the face, if any, is smaller than about a \
+                 fifteenth of the frame's short side or turned past profile",
                 f.located().min_detection_score(),
-                f.min_presence()
+                f.min_presence(),
+                if f.has_fallback() {
+                    "RetinaFace and "
+                } else {
+                    ""
+                }
             ),
             Locator::PreCropped => "no face: the image is taken as a face crop".into(),
         }
@@ -383,6 +402,33 @@ pub struct Tracker {
     last_time_s: Option<f64>,
 }
 
+/// `follower` with RetinaFace as its fallback detector when the config asks for one and it
+/// can run: on ONNX Runtime, from the OpenSeeFace model folder. Without it the follower
+/// still works (its fast detector alone), so a missing or damaged file is a warning.
+fn with_fallback<F>(
+    follower: F,
+    config: &TrackerConfig,
+    kind: BackendKind,
+    attach: impl FnOnce(F, crate::retinaface::RetinaFace) -> F,
+) -> F {
+    if !config.fallback_detector {
+        return follower;
+    }
+    if kind != BackendKind::OnnxRuntime {
+        tracing::info!(
+            "no fallback face detector on {kind:?}: RetinaFace runs on ONNX Runtime only"
+        );
+        return follower;
+    }
+    match crate::retinaface::RetinaFace::load(&config.models_dir, config.threads) {
+        Ok(detector) => attach(follower, detector),
+        Err(e) => {
+            tracing::warn!("no fallback face detector: {e}");
+            follower
+        }
+    }
+}
+
 fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
 }
@@ -400,8 +446,11 @@ impl Tracker {
         let mut dense_points = None;
         let locator = match config.locator {
             LocatorChoice::PreCropped => Locator::PreCropped,
-            LocatorChoice::Landmarks => Locator::Landmarks(Box::new(FaceFollower::new(
-                OpenSeeFace::load(&config.models_dir, kind, config.threads)?,
+            LocatorChoice::Landmarks => Locator::Landmarks(Box::new(with_fallback(
+                FaceFollower::new(OpenSeeFace::load(&config.models_dir, kind, config.threads)?),
+                &config,
+                kind,
+                FaceFollower::with_fallback,
             ))),
             LocatorChoice::MediaPipe => {
                 // The points over the template's own landmark vertices, not the common
@@ -411,14 +460,24 @@ impl Tracker {
                 if config.dense_fit {
                     dense_points = Some(correspondence.fit_points());
                 }
-                Locator::Mesh(Box::new(MeshFollower::new(
-                    MediaPipe::load(&config.mediapipe_dir, kind, config.threads)?,
-                    points,
+                Locator::Mesh(Box::new(with_fallback(
+                    MeshFollower::new(
+                        MediaPipe::load(&config.mediapipe_dir, kind, config.threads)?,
+                        points,
+                    ),
+                    &config,
+                    kind,
+                    MeshFollower::with_fallback,
                 )))
             }
             LocatorChoice::Auto => {
                 match OpenSeeFace::load(&config.models_dir, kind, config.threads) {
-                    Ok(models) => Locator::Landmarks(Box::new(FaceFollower::new(models))),
+                    Ok(models) => Locator::Landmarks(Box::new(with_fallback(
+                        FaceFollower::new(models),
+                        &config,
+                        kind,
+                        FaceFollower::with_fallback,
+                    ))),
                     Err(e @ TrackingError::MissingModel { .. }) if !footage => {
                         tracing::warn!(
                             "{e}; treating every image as a face crop framed like the training images"
