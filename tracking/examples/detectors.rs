@@ -1,7 +1,9 @@
 //! Recall and speed of each face detector (issue 32, item 7), frame by frame with nothing
 //! followed: OpenSeeFace's detector, BlazeFace on the whole frame, BlazeFace with its tiled
 //! search where the whole frame finds nothing, and RetinaFace; then the two search chains
-//! the followers use (OpenSeeFace's then RetinaFace; BlazeFace, then RetinaFace, then tiles).
+//! the followers use (OpenSeeFace's then RetinaFace; BlazeFace, then RetinaFace, then tiles),
+//! and the followers themselves on a first frame (their landmark checks included; the Face
+//! Mesh follower's hit is the points' centroid).
 //!
 //! - Held-out synthetic clips (every frame; a hit is a detection whose box centre lies in
 //!   the true 68 landmarks' box).
@@ -22,8 +24,8 @@ use glam::Vec2;
 use image::{Rgb, RgbImage};
 use tracking::BackendKind;
 use tracking::evaluate::{Clip, default_clips_dir};
-use tracking::mediapipe::MediaPipe;
-use tracking::openseeface::OpenSeeFace;
+use tracking::mediapipe::{MESH_TO_IBUG68, MediaPipe, MeshFollower, single_points};
+use tracking::openseeface::{FaceFollower, OpenSeeFace};
 use tracking::preprocess::Rect;
 use tracking::retinaface::RetinaFace;
 
@@ -36,19 +38,25 @@ fn main() {
     }
 }
 
-const DETECTORS: [&str; 6] = [
+const DETECTORS: [&str; 8] = [
     "OpenSeeFace",
     "BlazeFace (whole frame)",
     "BlazeFace + tiles",
     "RetinaFace",
     "OpenSeeFace, then RetinaFace",
     "BlazeFace, then RetinaFace, then tiles",
+    "OpenSeeFace's follower, first frame (+ landmark confidence)",
+    "Face Mesh follower, first frame (+ Face Mesh presence)",
 ];
 
 struct Detectors {
     openseeface: OpenSeeFace,
     blazeface: MediaPipe,
     retinaface: RetinaFace,
+    /// The followers as tracking runs them, reset before every frame: what a first frame
+    /// (or one after a loss) finds once their landmark checks have run.
+    face_follower: FaceFollower,
+    mesh_follower: MeshFollower,
 }
 
 /// What one detector run found: box centres, and its milliseconds.
@@ -59,7 +67,7 @@ struct Found {
 
 impl Detectors {
     /// The box centres each of [`DETECTORS`] finds in `image`, with the time it took.
-    fn run(&mut self, image: &RgbImage) -> AnyResult<[Found; 6]> {
+    fn run(&mut self, image: &RgbImage) -> AnyResult<[Found; 8]> {
         let timed = |f: &mut dyn FnMut() -> AnyResult<Vec<Vec2>>| -> AnyResult<Found> {
             let started = Instant::now();
             let centres = f()?;
@@ -133,7 +141,34 @@ impl Detectors {
         };
         let osf_chain = chain(&osf, &[&retina]);
         let mesh_chain = chain(&blaze, &[&retina, &tiles_only]);
-        Ok([osf, blaze, tiles, retina, osf_chain, mesh_chain])
+        self.face_follower.reset();
+        let face_follower = timed(&mut || {
+            Ok(self
+                .face_follower
+                .step(image)?
+                .map(|f| f.face_box.centre())
+                .into_iter()
+                .collect())
+        })?;
+        self.mesh_follower.reset();
+        let mesh_follower = timed(&mut || {
+            Ok(self
+                .mesh_follower
+                .step(image)?
+                .map(|f| f.mesh.points_2d().sum::<Vec2>() / f.mesh.points.len() as f32)
+                .into_iter()
+                .collect())
+        })?;
+        Ok([
+            osf,
+            blaze,
+            tiles,
+            retina,
+            osf_chain,
+            mesh_chain,
+            face_follower,
+            mesh_follower,
+        ])
     }
 }
 
@@ -188,7 +223,7 @@ fn paste(frame: &mut RgbImage, image: &RgbImage, side: u32, at: (u32, u32)) -> (
     (scaled, scale)
 }
 
-fn print_table(title: &str, tallies: &[Tally; 6], with_faces: bool) {
+fn print_table(title: &str, tallies: &[Tally; 8], with_faces: bool) {
     println!("\n{title}\n");
     if with_faces {
         println!("| detector | found | median ms per frame |");
@@ -234,12 +269,33 @@ fn run() -> AnyResult<()> {
             threads,
         )?,
         retinaface: RetinaFace::load(&tracking::openseeface::default_models_dir(), threads)?,
+        face_follower: FaceFollower::new(OpenSeeFace::load(
+            &tracking::openseeface::default_models_dir(),
+            BackendKind::OnnxRuntime,
+            threads,
+        )?)
+        .with_fallback(RetinaFace::load(
+            &tracking::openseeface::default_models_dir(),
+            threads,
+        )?),
+        mesh_follower: MeshFollower::new(
+            MediaPipe::load(
+                &tracking::mediapipe::default_models_dir(),
+                BackendKind::OnnxRuntime,
+                threads,
+            )?,
+            single_points(&MESH_TO_IBUG68),
+        )
+        .with_fallback(RetinaFace::load(
+            &tracking::openseeface::default_models_dir(),
+            threads,
+        )?),
     };
     println!("ONNX Runtime, {threads} threads; nothing followed from frame to frame");
 
     let clips_dir = value("--clips").unwrap_or_else(default_clips_dir);
     let clips = Clip::load_all(&clips_dir)?;
-    let mut tallies: [Tally; 6] = Default::default();
+    let mut tallies: [Tally; 8] = Default::default();
     for clip in &clips {
         for (path, truth) in clip.frames.iter().zip(&clip.truth.frames) {
             let image = read(path)?;
@@ -271,10 +327,10 @@ fn run() -> AnyResult<()> {
     };
     // LFW: 100 faces and 100 backgrounds, 25 x 25, scaled to 200 x 200.
     let side = 200u32;
-    let mut close: [Tally; 6] = Default::default();
-    let mut framed: [Tally; 6] = Default::default();
-    let mut close_bg: [Tally; 6] = Default::default();
-    let mut framed_bg: [Tally; 6] = Default::default();
+    let mut close: [Tally; 8] = Default::default();
+    let mut framed: [Tally; 8] = Default::default();
+    let mut close_bg: [Tally; 8] = Default::default();
+    let mut framed_bg: [Tally; 8] = Default::default();
     for i in 0..100 {
         for (kind, close_t, framed_t) in [
             ("face", &mut close, &mut framed),

@@ -904,11 +904,14 @@ pub struct MeshFollowResult {
 /// NME over the clips is 3.76 % against 3.89 % (3.97 % for OpenSeeFace's) and the refined
 /// landmark NME 2.71 % against 2.94 % (tracking/README.md), for one BlazeFace run a frame.
 ///
-/// Unlike MediaPipe's graph, points found on a detection are kept whatever their presence:
-/// the detector has already said there is a face (score >= 0.5), and on those clips Face
-/// Mesh's presence fell to 0.001-0.03 on seven frames of a strong funnel and squint (clip
-/// 1, frames 9-15) whose detections scored 0.85: dropping them found 94 % of the frames,
-/// keeping them 100 %, at the same expression error.
+/// Unlike MediaPipe's graph, points found on a detection while a face is being followed
+/// are kept whatever their presence: the detector has already said there is a face (score
+/// >= 0.5), and on those clips Face Mesh's presence fell to 0.001-0.03 on seven frames of a
+/// strong funnel and squint (clip 1, frames 9-15) whose detections scored 0.85: dropping
+/// them found 94 % of the frames, keeping them 100 %, at the same expression error. A new
+/// face (first frame, after a loss) is kept on Face Mesh's presence unless RetinaFace found
+/// it: BlazeFace gives a false face on 7 % of background crops (11 % with the tiles),
+/// RetinaFace on 1 %; one Face Mesh does not confirm sends the search on.
 ///
 /// With a fallback detector ([`MeshFollower::with_fallback`]), RetinaFace searches the
 /// whole frame before the tiles do (one run of ~30 ms against 45 BlazeFace runs; it finds
@@ -991,40 +994,77 @@ impl MeshFollower {
 
     fn follow(&mut self, image: &RgbImage) -> Result<Option<MeshFollowResult>> {
         let started = web_time::Instant::now();
-        let mut detections = self.located.detect(image)?;
-        // A face too small for the whole-frame pass: where it was (one run), else, with
-        // no face to follow, everywhere (tiles; the first frame or after a loss).
-        if detections.is_empty() {
-            detections = match self.previous {
-                Some(previous) => {
-                    let side = 2.0 * previous.side;
-                    let region = Rect::square(previous.centre, side);
-                    self.located.detect_in(image, region)?
-                }
-                None if self.tiled_wait == 0 => {
-                    let mut found = match self.fallback.as_mut() {
-                        Some(fallback) => fallback
-                            .detect(image)?
-                            .iter()
-                            .map(crate::retinaface::RetinaDetection::to_mesh)
-                            .collect(),
-                        None => Vec::new(),
-                    };
-                    if found.is_empty() {
-                        found = self.located.detect_tiled(image)?;
-                    }
-                    if found.is_empty() {
-                        self.tiled_wait = TILED_SEARCH_INTERVAL;
-                    }
-                    found
-                }
-                None => {
-                    self.tiled_wait -= 1;
-                    Vec::new()
-                }
-            };
+        let whole_frame = self.located.detect(image)?;
+        let mut detect_ms = elapsed_ms(started);
+        if !whole_frame.is_empty() {
+            let found =
+                self.mesh_on(image, &whole_frame, DetectionSource::WholeFrame, detect_ms)?;
+            // A new face Face Mesh does not confirm is as good as none: search on.
+            if found.is_some() || self.previous.is_some() {
+                return Ok(found);
+            }
         }
-        let detect_ms = elapsed_ms(started);
+        // A face too small for the whole-frame pass: where it was (one run), else, with
+        // no face to follow, everywhere (RetinaFace, then tiles; the first frame or after
+        // a loss).
+        let started = web_time::Instant::now();
+        let (detections, source) = match self.previous {
+            Some(previous) => {
+                let region = Rect::square(previous.centre, 2.0 * previous.side);
+                (
+                    self.located.detect_in(image, region)?,
+                    DetectionSource::NearPrevious,
+                )
+            }
+            None if self.tiled_wait == 0 => {
+                let mut found: Vec<MeshDetection> = match self.fallback.as_mut() {
+                    Some(fallback) => fallback
+                        .detect(image)?
+                        .iter()
+                        .map(crate::retinaface::RetinaDetection::to_mesh)
+                        .collect(),
+                    None => Vec::new(),
+                };
+                let mut source = DetectionSource::RetinaFace;
+                if found.is_empty() {
+                    found = self.located.detect_tiled(image)?;
+                    source = DetectionSource::Tiles;
+                }
+                if found.is_empty() {
+                    self.tiled_wait = TILED_SEARCH_INTERVAL;
+                }
+                (found, source)
+            }
+            None => {
+                self.tiled_wait -= 1;
+                return Ok(None);
+            }
+        };
+        detect_ms += elapsed_ms(started);
+        let found = self.mesh_on(image, &detections, source, detect_ms)?;
+        if found.is_none() && source == DetectionSource::Tiles {
+            // A false face in the background: wait before searching again, as after a
+            // search that found nothing.
+            self.tiled_wait = TILED_SEARCH_INTERVAL;
+        }
+        Ok(found)
+    }
+
+    /// Face Mesh on the largest of `detections` (on the previous frame's crop when there is
+    /// none and a face is being followed), if the face is kept.
+    ///
+    /// Kept whatever Face Mesh's presence: a face BlazeFace detected while one is being
+    /// followed (see the type's comment) and a face RetinaFace found (1-3 % false faces on
+    /// background crops). A new face from BlazeFace's whole-frame pass (7 % false faces on
+    /// background crops in 640 x 480 frames) or from the tiles (11 %), and a face only
+    /// followed: while Face Mesh sees a face (tracking/README.md).
+    fn mesh_on(
+        &mut self,
+        image: &RgbImage,
+        detections: &[MeshDetection],
+        source: DetectionSource,
+        detect_ms: f64,
+    ) -> Result<Option<MeshFollowResult>> {
         let largest = detections
             .iter()
             .filter(|d| inside(d.face_box.centre(), image.width(), image.height()))
@@ -1040,10 +1080,14 @@ impl MeshFollower {
         let started = web_time::Instant::now();
         let mesh = self.located.mesh(image, crop)?;
         let mesh_ms = elapsed_ms(started);
-        // A detected face is kept whatever Face Mesh's presence (see the type's comment);
-        // a followed one only while Face Mesh still sees a face.
+        let trusted = detected
+            && match source {
+                DetectionSource::WholeFrame => self.previous.is_some(),
+                DetectionSource::NearPrevious | DetectionSource::RetinaFace => true,
+                DetectionSource::Tiles => false,
+            };
         Ok(
-            (detected || mesh.presence >= self.min_presence).then_some(MeshFollowResult {
+            (trusted || mesh.presence >= self.min_presence).then_some(MeshFollowResult {
                 mesh,
                 detected,
                 detect_ms,
@@ -1051,6 +1095,15 @@ impl MeshFollower {
             }),
         )
     }
+}
+
+/// Which search found a frame's detections ([`MeshFollower::step`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum DetectionSource {
+    WholeFrame,
+    NearPrevious,
+    RetinaFace,
+    Tiles,
 }
 
 /// After a tiled search ([`MediaPipe::detect_tiled`]) found no face, the frames that
