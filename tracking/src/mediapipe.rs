@@ -905,8 +905,8 @@ pub struct MeshFollowResult {
 /// landmark NME 2.71 % against 2.94 % (tracking/README.md), for one BlazeFace run a frame.
 ///
 /// Unlike MediaPipe's graph, points found on a detection while a face is being followed
-/// are kept whatever their presence: the detector has already said there is a face (score
-/// >= 0.5), and on those clips Face Mesh's presence fell to 0.001-0.03 on seven frames of a
+/// are kept whatever their presence: the detector has already said there is a face (a
+/// score of at least 0.5), and on those clips Face Mesh's presence fell to 0.001-0.03 on seven frames of a
 /// strong funnel and squint (clip 1, frames 9-15) whose detections scored 0.85: dropping
 /// them found 94 % of the frames, keeping them 100 %, at the same expression error. A new
 /// face (first frame, after a loss) is kept on Face Mesh's presence unless RetinaFace found
