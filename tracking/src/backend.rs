@@ -179,24 +179,32 @@ impl TractModel {
     pub fn load(path: &Path) -> Result<Self> {
         use tract_onnx::prelude::*;
         let name = model_name(path);
-        let proto = tract_onnx::onnx()
-            .model_for_path(path)
+        let mut proto = tract_onnx::onnx()
+            .proto_model_for_path(path)
             .map_err(|e| tract_error(&name, e))?;
-        Ok(Self {
-            name,
-            proto,
-            plans: HashMap::new(),
-        })
+        Self::from_proto(name, &mut proto)
     }
 
     /// Reads a model from bytes (wasm32 has no file system).
     pub fn from_bytes(name: &str, bytes: &[u8]) -> Result<Self> {
         use tract_onnx::prelude::*;
-        let proto = tract_onnx::onnx()
-            .model_for_read(&mut std::io::Cursor::new(bytes))
+        let mut proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut std::io::Cursor::new(bytes))
             .map_err(|e| tract_error(name, e))?;
+        Self::from_proto(name.to_owned(), &mut proto)
+    }
+
+    fn from_proto(name: String, proto: &mut tract_onnx::pb::ModelProto) -> Result<Self> {
+        use tract_onnx::prelude::*;
+        let widened = widen_float16_weights(proto);
+        if widened > 0 {
+            tracing::debug!("{name}: {widened} float16 weights widened to float32 for tract");
+        }
+        let proto = tract_onnx::onnx()
+            .model_for_proto_model(proto)
+            .map_err(|e| tract_error(&name, e))?;
         Ok(Self {
-            name: name.to_owned(),
+            name,
             proto,
             plans: HashMap::new(),
         })
@@ -218,6 +226,79 @@ impl TractModel {
         self.plans.insert(shape.to_vec(), plan.clone());
         Ok(plan)
     }
+}
+
+/// ONNX's data type numbers for the two float widths.
+const ONNX_FLOAT: i32 = 1;
+const ONNX_FLOAT16: i32 = 10;
+
+/// Stores as float32 every float16 initializer that only feeds `Cast(to = float)` nodes
+/// (how the exporter halves the download: `store_weights_fp16`), leaving those casts
+/// float32 to float32, which tract removes. tract does not fold a cast of a constant into a
+/// constant, so it would otherwise widen all the weights on every run: TrackNet took 14.0
+/// against 7.7 ms a frame natively (`cargo bench -p tracking --bench pipeline`). Written
+/// here because it is a rewrite of the ONNX protobuf before tract reads it, which no crate
+/// offers. Returns how many initializers it widened.
+pub fn widen_float16_weights(proto: &mut tract_onnx::pb::ModelProto) -> usize {
+    use std::collections::HashMap;
+    let Some(graph) = proto.graph.as_mut() else {
+        return 0;
+    };
+    // For each tensor name, whether every node reading it is a cast to float.
+    let mut only_cast_to_float: HashMap<&str, bool> = HashMap::new();
+    for node in &graph.node {
+        let casts_to_float = node.op_type == "Cast"
+            && node
+                .attribute
+                .iter()
+                .any(|a| a.name == "to" && a.i == i64::from(ONNX_FLOAT));
+        for input in &node.input {
+            let entry = only_cast_to_float.entry(input.as_str()).or_insert(true);
+            *entry &= casts_to_float;
+        }
+    }
+    let widen: Vec<bool> = graph
+        .initializer
+        .iter()
+        .map(|t| {
+            t.data_type == ONNX_FLOAT16
+                && t.external_data.is_empty()
+                && only_cast_to_float.get(t.name.as_str()) == Some(&true)
+        })
+        .collect();
+    let mut widened = 0;
+    for (tensor, widen) in graph.initializer.iter_mut().zip(widen) {
+        if !widen {
+            continue;
+        }
+        let halves: Vec<tract_onnx::prelude::f16> = if tensor.raw_data.is_empty() {
+            // Without raw data ONNX keeps each float16's bits in an int32.
+            tensor
+                .int32_data
+                .iter()
+                .map(|&bits| tract_onnx::prelude::f16::from_bits(bits as u16))
+                .collect()
+        } else {
+            tensor
+                .raw_data
+                .chunks_exact(2)
+                .map(|b| tract_onnx::prelude::f16::from_le_bytes([b[0], b[1]]))
+                .collect()
+        };
+        let count: i64 = tensor.dims.iter().product();
+        if usize::try_from(count).ok() != Some(halves.len()) {
+            // Not what the dims say: left for tract to report.
+            continue;
+        }
+        tensor.raw_data = halves
+            .iter()
+            .flat_map(|h| h.to_f32().to_le_bytes())
+            .collect();
+        tensor.int32_data.clear();
+        tensor.data_type = ONNX_FLOAT;
+        widened += 1;
+    }
+    widened
 }
 
 fn tract_error(model: &str, e: impl std::fmt::Display) -> TrackingError {
@@ -402,5 +483,96 @@ mod ort_backend {
             }
             Ok(out)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, TensorProto};
+    use tract_onnx::prelude::f16;
+
+    fn half_tensor(name: &str, values: &[f32], raw: bool) -> TensorProto {
+        let halves: Vec<f16> = values.iter().map(|&v| f16::from_f32(v)).collect();
+        TensorProto {
+            name: name.into(),
+            dims: vec![values.len() as i64],
+            data_type: ONNX_FLOAT16,
+            raw_data: if raw {
+                halves.iter().flat_map(|h| h.to_le_bytes()).collect()
+            } else {
+                Vec::new()
+            },
+            int32_data: if raw {
+                Vec::new()
+            } else {
+                halves.iter().map(|h| i32::from(h.to_bits())).collect()
+            },
+            ..TensorProto::default()
+        }
+    }
+
+    fn node(op: &str, input: &str, to: Option<i32>) -> NodeProto {
+        NodeProto {
+            op_type: op.into(),
+            input: vec![input.into()],
+            output: vec![format!("{input}_out")],
+            attribute: to
+                .map(|t| AttributeProto {
+                    name: "to".into(),
+                    i: i64::from(t),
+                    ..AttributeProto::default()
+                })
+                .into_iter()
+                .collect(),
+            ..NodeProto::default()
+        }
+    }
+
+    fn floats(t: &TensorProto) -> Vec<f32> {
+        t.raw_data
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect()
+    }
+
+    /// Only float16 weights read by nothing but casts to float become float32, with the
+    /// same values (exact: every float16 is a float32), from raw bytes or int32 bits.
+    #[test]
+    fn float16_weights_that_only_feed_casts_to_float_are_widened() {
+        let mut proto = ModelProto {
+            graph: Some(GraphProto {
+                initializer: vec![
+                    half_tensor("raw", &[1.5, -2.0, 0.000_061_035_156], true),
+                    half_tensor("bits", &[65504.0, -0.25], false),
+                    half_tensor("also_added", &[1.0], true),
+                    half_tensor("cast_to_double", &[1.0], true),
+                ],
+                node: vec![
+                    node("Cast", "raw", Some(ONNX_FLOAT)),
+                    node("Cast", "bits", Some(ONNX_FLOAT)),
+                    node("Cast", "also_added", Some(ONNX_FLOAT)),
+                    node("Add", "also_added", None),
+                    node("Cast", "cast_to_double", Some(11)),
+                ],
+                ..GraphProto::default()
+            }),
+            ..ModelProto::default()
+        };
+        assert_eq!(widen_float16_weights(&mut proto), 2);
+        let graph = proto.graph.as_ref().expect("graph");
+        let [raw, bits, added, double] = &graph.initializer[..] else {
+            panic!("four initializers");
+        };
+        assert_eq!((raw.data_type, bits.data_type), (ONNX_FLOAT, ONNX_FLOAT));
+        assert_eq!(floats(raw), vec![1.5, -2.0, 0.000_061_035_156]);
+        assert_eq!(floats(bits), vec![65504.0, -0.25]);
+        assert!(bits.int32_data.is_empty());
+        assert_eq!(
+            (added.data_type, double.data_type),
+            (ONNX_FLOAT16, ONNX_FLOAT16)
+        );
+        // A model without a graph is left alone.
+        assert_eq!(widen_float16_weights(&mut ModelProto::default()), 0);
     }
 }
