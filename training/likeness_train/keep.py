@@ -42,8 +42,25 @@ def kept_state(state: dict) -> dict:
     return {key: state[key] for key in KEPT_KEYS if key in state and not (warmup and key in UNTRAINED_IN_WARMUP)}
 
 
-def keep(checkpoint: Path, out: Path) -> dict:
-    """Writes `checkpoint`'s kept part to `out` atomically and returns it."""
+# The state dicts `--float16` stores at half width (their floating-point tensors only).
+NETWORK_KEYS = ("track_net", "model_net")
+
+
+def halved(kept: dict) -> dict:
+    """`kept` with the networks' floating-point tensors stored as float16. The readers load
+    them into float32 networks (`load_state_dict` converts), so what changes is the
+    rounding of each weight, the same rounding the shipped ONNX files store
+    (`export.store_weights_fp16`); the file halves (24 -> 12 MB for TrackNet)."""
+    out = dict(kept)
+    for key in NETWORK_KEYS:
+        if key in out:
+            out[key] = {name: (t.half() if torch.is_tensor(t) and t.is_floating_point() else t) for name, t in out[key].items()}
+    return out
+
+
+def keep(checkpoint: Path, out: Path, float16: bool = False) -> dict:
+    """Writes `checkpoint`'s kept part to `out` atomically and returns it; with `float16`,
+    the networks' weights at half width (`halved`)."""
     if not checkpoint.is_file():
         raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
     if out.exists() and os.path.samefile(out, checkpoint):
@@ -56,6 +73,8 @@ def keep(checkpoint: Path, out: Path) -> dict:
         kept = kept_state(state)
     except ValueError as e:
         raise ValueError(f"{checkpoint}: {e}") from e
+    if float16:
+        kept = halved(kept)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp")
     torch.save(kept, tmp)
@@ -67,9 +86,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--checkpoint", type=Path, required=True, help="a run's checkpoint.pt, warmup.pt or calibrated.pt")
     parser.add_argument("--out", type=Path, required=True, help="where to write the kept copy (training/checkpoints/NAME.pt)")
+    parser.add_argument("--float16", action="store_true", help="store the networks' weights as float16 (half the file; the readers load them into float32)")
     args = parser.parse_args(argv)
     try:
-        kept = keep(args.checkpoint, args.out)
+        kept = keep(args.checkpoint, args.out, float16=args.float16)
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(str(e)) from e
     size = args.out.stat().st_size / 1e6

@@ -51,6 +51,34 @@ def test_kept_checkpoint_has_the_same_networks_without_the_optimiser(trained, tm
         assert torch.equal(fresh.track.state_dict()[name], value), name
 
 
+def test_a_float16_copy_holds_the_rounded_weights_and_tracks_alike(trained, tmp_path):
+    full, half = tmp_path / "full.pt", tmp_path / "half.pt"
+    keep_main(["--checkpoint", str(trained), "--out", str(full)])
+    keep_main(["--checkpoint", str(trained), "--out", str(half), "--float16"])
+    assert half.stat().st_size < 0.6 * full.stat().st_size
+    original = torch.load(trained, map_location="cpu", weights_only=False)["track_net"]
+    stored = torch.load(half, map_location="cpu", weights_only=False)["track_net"]
+    for name, value in original.items():
+        if value.is_floating_point():
+            assert stored[name].dtype == torch.float16, name
+            assert torch.equal(stored[name].float(), value.half().float()), name
+        else:
+            assert torch.equal(stored[name], value), name
+    # Every reader loads it into float32 networks that track as the original does, up to
+    # the weights' rounding.
+    a, b = load_networks(trained), load_networks(half)
+    assert all(p.dtype == torch.float32 for p in b.track.parameters())
+    torch.manual_seed(0)
+    image = torch.rand(2, 3, 128, 128)
+    with torch.no_grad():
+        x, y = a.track(image), b.track(image)
+    for field in ("w", "euler", "translation", "gamma"):
+        assert torch.allclose(getattr(x, field), getattr(y, field), atol=2e-2), field
+    fresh = Trainer(_config(init_track_from=str(half)), tmp_path / "next")
+    for name, value in original.items():
+        assert fresh.track.state_dict()[name].dtype == value.dtype, name
+
+
 def test_keep_refuses_bad_input(trained, tmp_path):
     with pytest.raises(SystemExit, match="no such checkpoint"):
         keep_main(["--checkpoint", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "a.pt")])
