@@ -141,28 +141,32 @@ pub fn start() {
     });
 }
 
-async fn run(report: &Report) -> Result<(), String> {
-    report.set("startedMs", now_ms());
-    let mut fetched = Fetched::default();
+/// Fetches each of `assets` into `fetched`, saying which is loading; returns those the
+/// server does not have.
+async fn fetch_into(
+    assets: &[Asset],
+    fetched: &mut Fetched,
+    report: &Report,
+) -> Result<Vec<Asset>, String> {
     let mut missing = Vec::new();
-    for asset in REQUIRED_ASSETS {
+    for &asset in assets {
         report.status(&format!("loading {}...", asset.url), false);
         match fetch_bytes(asset.url).await? {
             Some(bytes) => fetched.insert(asset, bytes),
             None => missing.push(asset),
         }
     }
+    Ok(missing)
+}
+
+async fn run(report: &Report) -> Result<(), String> {
+    report.set("startedMs", now_ms());
+    let mut fetched = Fetched::default();
+    let missing = fetch_into(&REQUIRED_ASSETS, &mut fetched, report).await?;
     if !missing.is_empty() {
         return Err(missing_message(&missing));
     }
-    let mut optional_missing = Vec::new();
-    for asset in OPTIONAL_ASSETS {
-        report.status(&format!("loading {}...", asset.url), false);
-        match fetch_bytes(asset.url).await? {
-            Some(bytes) => fetched.insert(asset, bytes),
-            None => optional_missing.push(asset),
-        }
-    }
+    let optional_missing = fetch_into(&OPTIONAL_ASSETS, &mut fetched, report).await?;
     if !optional_missing.is_empty() {
         tracing::info!("{}", optional_missing_note(&optional_missing));
     }
