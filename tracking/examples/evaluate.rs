@@ -8,7 +8,8 @@
 //! `cargo run --release -p tracking --example evaluate [-- --backend tract]
 //! [--weight-prior X] [--weight-sparsity X] [--rotation-prior X] [--translation-prior X]
 //! [--smooth SPEC] [--locator openseeface|mediapipe [--no-dense]] [--tune DIR [--sparsity-grid A,B,...]
-//! [--prior-grid A,B,...]]` (the priors and smoothing default to the tracker's defaults,
+//! [--prior-grid A,B,...] [--rotation-grid A,B,...] [--translation-grid A,B,...]] [--tune-identity DIR]
+//! [--identity-prior X] [--identity-components K]` (the priors and smoothing default to the tracker's defaults,
 //! the locator to OpenSeeFace).
 //!
 //! `--tune DIR` first compares refinement with each weight prior and sparsity of the grids on the
@@ -95,25 +96,79 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         let priors = grid("--prior-grid", refine.weight_prior.to_string())?;
         let sparsities = grid("--sparsity-grid", "0,0.1,0.2,0.4,0.8,1.6,3.2".into())?;
         // Of candidates with equal errors the first listed is chosen: the grids go up.
-        let candidates: Vec<_> = priors
-            .iter()
-            .flat_map(|&p| sparsities.iter().map(move |&s| (p, s)))
-            .map(|(p, s)| tracking::refine::RefineConfig {
-                weight_prior: p,
-                weight_sparsity: s,
-                ..refine.clone()
-            })
-            .collect();
+        let rotations = grid("--rotation-grid", refine.rotation_prior.to_string())?;
+        let translations = grid("--translation-grid", refine.translation_prior.to_string())?;
+        let mut candidates = Vec::new();
+        for &rotation_prior in &rotations {
+            for &translation_prior in &translations {
+                for &weight_prior in &priors {
+                    for &weight_sparsity in &sparsities {
+                        candidates.push(tracking::refine::RefineConfig {
+                            weight_prior,
+                            weight_sparsity,
+                            rotation_prior,
+                            translation_prior,
+                            ..refine.clone()
+                        });
+                    }
+                }
+            }
+        }
         let tuning = tune_refinement(face.clone(), &tuning_clips, &config, &candidates)?;
         println!("## Weight sparsity chosen on the tuning clips ({dir})\n");
         println!("{}", tuning.table());
         config.refine = Some(tuning.rows[tuning.chosen].0.clone());
+    }
+    let mut identity = tracking::identity::IdentityConfig::default();
+    if let Some(v) = value("--identity-prior")? {
+        identity.prior = v;
+    }
+    if let Some(v) = value("--identity-components")? {
+        identity.components = v as usize;
+    }
+    if let Some(dir) = text("--tune-identity") {
+        let tuning_clips = Clip::load_all(std::path::Path::new(&dir))?;
+        tracking::evaluate::check_tuning_clips(&tuning_clips, &clips)?;
+        let mut candidates = Vec::new();
+        for components in [10usize, 20, 40, 100] {
+            for prior in [0.005f32, 0.02, 0.05, 0.2, 1.0] {
+                candidates.push(tracking::identity::IdentityConfig {
+                    components,
+                    prior,
+                    ..identity.clone()
+                });
+            }
+        }
+        let (template, rows) =
+            tracking::evaluate::tune_identity(face.clone(), &tuning_clips, &config, &candidates)?;
+        println!("## Identity fitted to each tuning clip ({dir})\n");
+        println!(
+            "| identity | expression MAE (all 53) | landmark NME (box) | NME (inter-ocular) |\n|---|---|---|---|"
+        );
+        println!(
+            "| none (template) | {:.4} | {:.2} % | {:.2} % |",
+            template.expression_mae,
+            100.0 * template.landmark_nme,
+            100.0 * template.landmark_nme_iod
+        );
+        for (c, m) in &rows {
+            println!(
+                "| {} components, prior {} | {:.4} | {:.2} % | {:.2} % |",
+                c.components,
+                c.prior,
+                m.expression_mae,
+                100.0 * m.landmark_nme,
+                100.0 * m.landmark_nme_iod
+            );
+        }
+        return Ok(());
     }
     let evaluation = evaluate(
         face.clone(),
         &clips,
         &config,
         tracking::personalize::DEFAULT_FRAMES,
+        &identity,
     )?;
     println!(
         "## Held-out synthetic clips ({})\n",

@@ -12,18 +12,12 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use face::camera::{HeadPose, Intrinsics};
-use face::uv::{CORRECTION_SIZE, UvMap};
-use face::{
-    BlendshapeWeights, FaceModel, NUM_BLENDSHAPES, NUM_LANDMARKS, PersonalCorrections,
-    PersonalizedBlendshapes, Template,
-};
-use glam::{Vec2, Vec3};
-use tracking::evaluate::{Clip, TruthFrame};
+use face::{FaceModel, NUM_BLENDSHAPES, NUM_LANDMARKS, Template};
+use glam::Vec2;
+use tracking::evaluate::{Clip, TruthFrame, track_clip_unrefined};
 use tracking::mediapipe::{IctCorrespondence, default_models_dir};
-use tracking::pipeline::{FrameOutput, LocatorChoice, Tracker, TrackerConfig};
+use tracking::pipeline::LocatorChoice;
 use tracking::refine::{FitPoints, LandmarkObservations, RefineConfig, Refiner};
-use tracking::source::{FrameSource, Next};
 
 type AnyResult<T> = Result<T, Box<dyn std::error::Error>>;
 
@@ -34,80 +28,6 @@ fn main() {
     }
 }
 
-/// A clip's true shape corrections (the frames use the exact identity offset; dS_0 is its
-/// UV projection, which is what ModelNet could output at best).
-fn true_blendshapes(face: &FaceModel, clip: &Clip) -> AnyResult<PersonalizedBlendshapes> {
-    let path = clip.dir.join("person.safetensors");
-    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let tensors = safetensors::SafeTensors::deserialize(&bytes)?;
-    let plane = CORRECTION_SIZE * CORRECTION_SIZE;
-    let read = |name: &str, maps: usize| -> AnyResult<Vec<UvMap>> {
-        let t = tensors.tensor(name)?;
-        if t.dtype() != safetensors::Dtype::F32 || t.data().len() != maps * 3 * plane * 4 {
-            return Err(format!(
-                "{}: {name} is not {maps} x 3 x 128 x 128 f32",
-                path.display()
-            )
-            .into());
-        }
-        let values: Vec<f32> = t
-            .data()
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect();
-        // The training code writes channels first; a UvMap keeps them per texel.
-        Ok(values
-            .chunks_exact(3 * plane)
-            .map(|chw| {
-                let mut map = UvMap::zeros(CORRECTION_SIZE, CORRECTION_SIZE, 3);
-                for (texel, out) in map.data.chunks_exact_mut(3).enumerate() {
-                    for (c, o) in out.iter_mut().enumerate() {
-                        *o = chw[c * plane + texel];
-                    }
-                }
-                map
-            })
-            .collect())
-    };
-    let mut corrections = PersonalCorrections::zeros();
-    corrections.identity_shape = read("dS0", 1)?.remove(0);
-    corrections.expression_shapes = read("dS", NUM_BLENDSHAPES)?;
-    Ok(face.personalize(&corrections)?)
-}
-
-fn truth_weights(t: &TruthFrame) -> AnyResult<BlendshapeWeights> {
-    let weights: [f32; NUM_BLENDSHAPES] = t
-        .weights
-        .as_slice()
-        .try_into()
-        .map_err(|_| "a truth frame without 53 weights")?;
-    Ok(BlendshapeWeights(weights))
-}
-
-/// The true image positions of `vertices` (the person's own, under the true w and pose).
-fn truth_points(
-    person: &PersonalizedBlendshapes,
-    intrinsics: &Intrinsics,
-    t: &TruthFrame,
-    vertices: &[u32],
-) -> AnyResult<Vec<Vec2>> {
-    let pose = HeadPose::from_degrees(
-        t.rotation_deg[0],
-        t.rotation_deg[1],
-        t.rotation_deg[2],
-        Vec3::from(t.translation),
-    );
-    let weights = truth_weights(t)?;
-    vertices
-        .iter()
-        .map(|&v| {
-            intrinsics
-                .project(pose.transform(person.vertex(v as usize, &weights)))
-                .ok_or_else(|| "a true point behind the camera".into())
-        })
-        .collect()
-}
-
 fn weight_mae(weights: &[f32], t: &TruthFrame) -> f64 {
     weights
         .iter()
@@ -115,36 +35,6 @@ fn weight_mae(weights: &[f32], t: &TruthFrame) -> f64 {
         .map(|(a, b)| f64::from((a - b).abs()))
         .sum::<f64>()
         / NUM_BLENDSHAPES as f64
-}
-
-/// One clip tracked by one locator: TrackNet's start and the detected points per frame.
-fn track(
-    face: &Arc<FaceModel>,
-    clip: &Clip,
-    locator: LocatorChoice,
-) -> AnyResult<(Vec<FrameOutput>, Intrinsics)> {
-    let config = TrackerConfig {
-        locator,
-        dense_fit: true,
-        fov_deg: Some(clip.fov_deg()),
-        smoothing: tracking::smooth::SmoothingConfig::off(),
-        refine: None,
-        ..TrackerConfig::default()
-    };
-    let mut tracker = Tracker::new(face.clone(), config, true)?;
-    let mut outputs = Vec::new();
-    let mut source = clip.source();
-    loop {
-        match source.next_frame()? {
-            Next::Frame(f) => outputs.push(tracker.process(&f)),
-            Next::Skipped(s) => return Err(s.error.into()),
-            Next::End => break,
-        }
-    }
-    Ok((
-        outputs,
-        tracker.intrinsics(clip.truth.width, clip.truth.height),
-    ))
 }
 
 /// Standard normal numbers, reproducible run to run (splitmix64 and Box-Muller: the
@@ -233,7 +123,7 @@ fn run() -> AnyResult<()> {
     let mut tracknet = Mean::default();
     let mut truth_check = Mean::default();
     for clip in &clips {
-        let person = true_blendshapes(&face, clip)?;
+        let person = clip.true_person(&face)?;
         let refiners = [
             [
                 Refiner::with_points(&template, &sparse)?,
@@ -244,8 +134,8 @@ fn run() -> AnyResult<()> {
                 Refiner::with_points(&person, &dense)?,
             ],
         ];
-        let (osf, intrinsics) = track(&face, clip, LocatorChoice::Landmarks)?;
-        let (mesh, _) = track(&face, clip, LocatorChoice::MediaPipe)?;
+        let (osf, intrinsics) = track_clip_unrefined(face.clone(), clip, LocatorChoice::Landmarks)?;
+        let (mesh, _) = track_clip_unrefined(face.clone(), clip, LocatorChoice::MediaPipe)?;
         for ((o, m), t) in osf.iter().zip(&mesh).zip(&clip.truth.frames) {
             // Frames both locators found, started from the same TrackNet run (OpenSeeFace's crop).
             let (Some(init), Some(sparse_seen), Some(dense_seen)) = (
@@ -256,13 +146,13 @@ fn run() -> AnyResult<()> {
                 continue;
             };
             tracknet.add(weight_mae(&init.weights, t));
-            let true_68 = truth_points(&person, &intrinsics, t, &face.template.landmarks_68)?;
+            let true_68 = t.project_vertices(&person, &intrinsics, &face.template.landmarks_68)?;
             let recorded: [Vec2; NUM_LANDMARKS] =
                 std::array::from_fn(|i| Vec2::new(t.landmarks_68[i][0], t.landmarks_68[i][1]));
             for (p, q) in true_68.iter().zip(&recorded) {
                 truth_check.add(f64::from(p.distance(*q)));
             }
-            let dense_truth = truth_points(&person, &intrinsics, t, &dense.vertices)?;
+            let dense_truth = t.project_vertices(&person, &intrinsics, &dense.vertices)?;
             let true_68 = LandmarkObservations::from_68(&recorded);
             for (r, &(_, true_model, true_points, is_dense)) in rows.iter().enumerate() {
                 let noisy_468;

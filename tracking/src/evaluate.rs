@@ -6,12 +6,19 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use face::{FaceModel, ICT_NAMES, NUM_BLENDSHAPES, NUM_LANDMARKS, Template};
+use face::camera::{HeadPose, Intrinsics};
+use face::uv::{CORRECTION_SIZE, UvMap};
+use face::{
+    BlendshapeWeights, FaceModel, ICT_NAMES, NUM_BLENDSHAPES, NUM_LANDMARKS, PersonalCorrections,
+    PersonalizedBlendshapes, Template,
+};
+use glam::{Vec2, Vec3};
 use serde::Deserialize;
 
 use crate::error::{Result, TrackingError, io_error};
+use crate::identity::IdentityConfig;
 use crate::networks::ModelNet;
-use crate::pipeline::{FrameOutput, Tracker, TrackerConfig};
+use crate::pipeline::{FrameOutput, LocatorChoice, Tracker, TrackerConfig};
 use crate::record::FrameRecord;
 use crate::refine::RefineConfig;
 use crate::smooth::SmoothingConfig;
@@ -124,6 +131,111 @@ impl Clip {
             self.dir.display().to_string(),
         )
     }
+
+    /// The clip's true person as blendshapes: their `person.safetensors` (`dS0` [3, 128,
+    /// 128] and `dS` [53, 3, 128, 128], cm, channels first) through equation (2). The
+    /// frames were rendered with the exact identity offset; dS_0 is its UV projection,
+    /// what ModelNet could output at best (its landmarks reproduce the clip's within
+    /// 0.05 px, the `refinement_bounds` example checks).
+    pub fn true_person(&self, face: &FaceModel) -> Result<PersonalizedBlendshapes> {
+        let path = self.dir.join("person.safetensors");
+        let bytes = std::fs::read(&path).map_err(io_error(&path))?;
+        let bad = |reason: String| TrackingError::Decode {
+            path: path.clone(),
+            reason,
+        };
+        let tensors =
+            safetensors::SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
+        let size = CORRECTION_SIZE;
+        let read = |name: &str, maps: usize| -> Result<Vec<UvMap>> {
+            let t = tensors.tensor(name).map_err(|e| bad(e.to_string()))?;
+            let plane = 3 * size * size;
+            if t.dtype() != safetensors::Dtype::F32 || t.data().len() != maps * plane * 4 {
+                return Err(bad(format!(
+                    "`{name}` is not {maps} x 3 x {size} x {size} f32"
+                )));
+            }
+            let values: Vec<f32> = t
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            Ok(values
+                .chunks_exact(plane)
+                .map(|chw| crate::networks::chw_to_uv(chw, size, size))
+                .collect())
+        };
+        let mut corrections = PersonalCorrections::zeros();
+        corrections.identity_shape = read("dS0", 1)?.remove(0);
+        corrections.expression_shapes = read("dS", NUM_BLENDSHAPES)?;
+        Ok(face.personalize(&corrections)?)
+    }
+}
+
+impl TruthFrame {
+    /// The true weights (a loaded clip has 53 per frame).
+    pub fn blendshape_weights(&self) -> BlendshapeWeights {
+        BlendshapeWeights(std::array::from_fn(|i| {
+            self.weights.get(i).copied().unwrap_or(0.0)
+        }))
+    }
+
+    /// The true head pose in the clip's camera.
+    pub fn pose(&self) -> HeadPose {
+        let [yaw, pitch, roll] = self.rotation_deg;
+        HeadPose::from_degrees(yaw, pitch, roll, Vec3::from(self.translation))
+    }
+
+    /// Where `person`'s `vertices` appear in this frame (true weights and pose, the clip's
+    /// camera `intrinsics`).
+    pub fn project_vertices(
+        &self,
+        person: &PersonalizedBlendshapes,
+        intrinsics: &Intrinsics,
+        vertices: &[u32],
+    ) -> Result<Vec<Vec2>> {
+        let (pose, weights) = (self.pose(), self.blendshape_weights());
+        vertices
+            .iter()
+            .map(|&v| {
+                if v as usize >= person.vertex_count {
+                    return Err(TrackingError::InvalidInput(format!(
+                        "vertex {v} is outside the person's {} vertices",
+                        person.vertex_count
+                    )));
+                }
+                intrinsics
+                    .project(pose.transform(person.vertex(v as usize, &weights)))
+                    .ok_or_else(|| {
+                        TrackingError::InvalidInput(format!(
+                            "frame {}: vertex {v} is behind the camera",
+                            self.index
+                        ))
+                    })
+            })
+            .collect()
+    }
+}
+
+/// Tracks `clip` with `locator` (its camera, no refinement, no smoothing; dense points kept
+/// for a dense locator): each frame's output and the camera, for studies of what the
+/// detectors and TrackNet give.
+pub fn track_clip_unrefined(
+    face: Arc<FaceModel>,
+    clip: &Clip,
+    locator: LocatorChoice,
+) -> Result<(Vec<FrameOutput>, Intrinsics)> {
+    let config = TrackerConfig {
+        locator,
+        dense_fit: true,
+        refine: None,
+        ..TrackerConfig::default()
+    };
+    let TrackedClip {
+        tracker, outputs, ..
+    } = track_clip(face, clip, &config)?;
+    let intrinsics = tracker.intrinsics(clip.truth.width, clip.truth.height);
+    Ok((outputs, intrinsics))
 }
 
 /// Errors of one variant over one or more clips.
@@ -562,6 +674,60 @@ pub fn check_tuning_clips(tuning: &[Clip], held_out: &[Clip]) -> Result<()> {
     }
 }
 
+/// Refinement on the template with an identity fitted to each clip by each of
+/// `candidates`, over tuning clips (as [`tune_refinement`], never the held-out ones): the
+/// metrics with refinement on the template alone first, then one row per candidate.
+pub fn tune_identity(
+    face: Arc<FaceModel>,
+    clips: &[Clip],
+    config: &TrackerConfig,
+    candidates: &[IdentityConfig],
+) -> Result<(Metrics, Vec<(IdentityConfig, Metrics)>)> {
+    if candidates.is_empty() {
+        return Err(TrackingError::InvalidInput(
+            "no identity settings to compare".into(),
+        ));
+    }
+    for c in candidates {
+        c.validate(face.template.identity_count)?;
+    }
+    let mut template = Accumulator::default();
+    let mut acc: Vec<Accumulator> = candidates.iter().map(|_| Accumulator::default()).collect();
+    for clip in clips {
+        let TrackedClip {
+            mut tracker,
+            outputs,
+            refine_config,
+        } = track_clip(face.clone(), clip, config)?;
+        let (w, h) = (clip.truth.width, clip.truth.height);
+        tracker.set_refine(Some(refine_config));
+        let template_model = Arc::new(face.template_blendshapes());
+        template.new_clip();
+        tracker.reset();
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            template.add(&tracker.retrack(o, w, h), t);
+        }
+        for (candidate, a) in candidates.iter().zip(&mut acc) {
+            tracker.set_blendshapes(template_model.clone())?;
+            tracker.fit_identity(&outputs, w, h, candidate)?;
+            a.new_clip();
+            tracker.reset();
+            for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+                a.add(&tracker.retrack(o, w, h), t);
+            }
+        }
+    }
+    let visible = visible_channels(&face.template);
+    Ok((
+        template.finish(&visible).0,
+        candidates
+            .iter()
+            .cloned()
+            .zip(acc.iter().map(|a| a.finish(&visible).0))
+            .collect(),
+    ))
+}
+
 impl Tuning {
     /// A Markdown table: TrackNet alone, then each candidate's weight prior and sparsity
     /// with its errors, the chosen one marked.
@@ -576,9 +742,11 @@ impl Tuning {
         );
         for (i, (c, m)) in self.rows.iter().enumerate() {
             out.push_str(&format!(
-                "| weight prior {}, sparsity {} | {:.4} | {:.4} | {:.2} % | {} |\n",
+                "| weight prior {}, sparsity {}, rotation prior {}, translation prior {} | {:.4} | {:.4} | {:.2} % | {} |\n",
                 c.weight_prior,
                 c.weight_sparsity,
+                c.rotation_prior,
+                c.translation_prior,
                 m.expression_mae,
                 m.expression_mae_visible,
                 100.0 * m.landmark_nme,
@@ -590,9 +758,10 @@ impl Tuning {
 }
 
 /// The variants compared, in table order.
-pub const VARIANTS: [&str; 4] = [
+pub const VARIANTS: [&str; 5] = [
     "TrackNet only",
     "+ refinement (template)",
+    "+ refinement (identity fitted to the clip)",
     "+ refinement (personalized)",
     "+ refinement (personalized) + smoothing",
 ];
@@ -615,6 +784,7 @@ pub fn evaluate(
     clips: &[Clip],
     config: &TrackerConfig,
     personalize_frames: usize,
+    identity: &IdentityConfig,
 ) -> Result<Evaluation> {
     let mut acc: Vec<Accumulator> = (0..VARIANTS.len())
         .map(|_| Accumulator::default())
@@ -645,6 +815,12 @@ pub fn evaluate(
         for (o, t) in outputs.iter().zip(&clip.truth.frames) {
             acc[1].add(&tracker.retrack(o, w, h), t);
         }
+        // The template with the identity fitted to the whole clip.
+        tracker.fit_identity(&outputs, w, h, identity)?;
+        tracker.reset();
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            acc[2].add(&tracker.retrack(o, w, h), t);
+        }
         // Personalized: ModelNet on diverse frames of this clip.
         let mut model_net = ModelNet::load(&tracker.manifest, tracker.backend(), config.threads)?;
         let (corrections, _) =
@@ -652,12 +828,12 @@ pub fn evaluate(
         tracker.set_blendshapes(Arc::new(face.personalize(&corrections)?))?;
         tracker.reset();
         for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-            acc[2].add(&tracker.retrack(o, w, h), t);
+            acc[3].add(&tracker.retrack(o, w, h), t);
         }
         tracker.set_smoothing(config.smoothing.clone());
         tracker.reset();
         for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-            acc[3].add(&tracker.retrack(o, w, h), t);
+            acc[4].add(&tracker.retrack(o, w, h), t);
         }
     }
     let visible = visible_channels(&face.template);

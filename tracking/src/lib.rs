@@ -22,6 +22,7 @@ pub mod preprocess;
 
 pub use params::FaceParams;
 pub mod evaluate;
+pub mod identity;
 pub mod mediapipe;
 pub mod networks;
 pub mod openseeface;

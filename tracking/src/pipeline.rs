@@ -581,6 +581,79 @@ impl Tracker {
         Ok(())
     }
 
+    /// Fits the person's identity to a whole tracked clip (`outputs` of this tracker, frames
+    /// of `width` x `height`) and uses it from now on ([`crate::identity`]): each round
+    /// refines every frame on the current model (the configured refinement, or the
+    /// default), then fits the identity to all of them with those poses and weights held.
+    /// The identity goes on top of the blendshapes in use when called (the template, or
+    /// ModelNet's person). Fits Face Mesh's points where the tracker fits them, else the 68.
+    pub fn fit_identity(
+        &mut self,
+        outputs: &[FrameOutput],
+        width: u32,
+        height: u32,
+        config: &crate::identity::IdentityConfig,
+    ) -> Result<crate::identity::IdentityFit> {
+        config.validate(self.face.template.identity_count)?;
+        let refine = self.config.refine.clone().unwrap_or_default();
+        let intrinsics = self.intrinsics(width, height);
+        let start = self.blendshapes.clone();
+        let points = match &self.dense {
+            Some((points, _)) => points.clone(),
+            None => FitPoints::ibug68(&self.face.template),
+        };
+        let start_refiner = Refiner::with_points(&start, &points)?;
+        let mut coefficients: Vec<f32> = Vec::new();
+        let mut fit = None;
+        for _ in 0..config.rounds {
+            let mut frames = Vec::new();
+            for out in outputs {
+                let Some(tracknet) = out.tracknet.as_ref() else {
+                    continue;
+                };
+                let (refiner, observations) = match (&self.dense, &out.dense_observations) {
+                    (Some((_, dense)), Some(obs)) => (dense, obs),
+                    (Some(_), None) => continue,
+                    (None, _) => match &out.observations {
+                        Some(obs) => (&self.refiner, obs),
+                        None => continue,
+                    },
+                };
+                // A frame refinement refuses (a point behind the camera) is left out of the
+                // fit, as it is out of the tracking.
+                let params = match refiner.refine(&intrinsics, tracknet, observations, &refine) {
+                    Ok(refined) => refined.params,
+                    Err(e) => {
+                        tracing::debug!(
+                            "frame {} left out of the identity fit: {e}",
+                            out.record.index
+                        );
+                        continue;
+                    }
+                };
+                frames.push(crate::identity::ClipFrame {
+                    params,
+                    observations,
+                });
+            }
+            let this = crate::identity::fit_identity(
+                &self.face.template,
+                &start_refiner,
+                &intrinsics,
+                &frames,
+                &refine,
+                config,
+                &coefficients,
+            )?;
+            coefficients = this.coefficients.clone();
+            let person =
+                crate::identity::with_identity(&self.face.template, &start, &coefficients)?;
+            self.set_blendshapes(Arc::new(person))?;
+            fit = Some(this);
+        }
+        fit.ok_or_else(|| TrackingError::InvalidInput("no identity fit round ran".into()))
+    }
+
     pub fn set_refine(&mut self, refine: Option<RefineConfig>) {
         self.config.refine = refine;
     }

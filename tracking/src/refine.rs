@@ -362,6 +362,8 @@ pub struct Refiner {
     /// coordinate rows (x_i), (y_i), (z_i) so that S_k(w) and the Jacobian rows are plain
     /// vectorisable inner products and multiply-adds over i.
     landmark_deltas: Vec<[[f32; NW]; 3]>,
+    /// The model vertex under each fitted point.
+    point_vertices: Vec<u32>,
     /// For each point, the contour chain it lies on and its place there.
     contour_of: Vec<Option<(usize, usize)>>,
     contours: Vec<Vec<usize>>,
@@ -463,6 +465,7 @@ impl Refiner {
         Ok(Self {
             landmark_base,
             landmark_deltas,
+            point_vertices: points.vertices.clone(),
             contour_of,
             contours: points.contours.clone(),
             photometric: None,
@@ -472,6 +475,58 @@ impl Refiner {
     /// How many points observations may index.
     pub fn point_count(&self) -> usize {
         self.landmark_base.len()
+    }
+
+    /// The two directions each of `used` is measured along: x and y, or for a point on a
+    /// contour chain the direction across the observed chain and `contour_slide`'s square
+    /// root times the one along it (the chain's direction from its neighbouring observed
+    /// points), so that a point sliding along its outline costs little.
+    pub(crate) fn residual_bases(
+        &self,
+        used: &[&LandmarkObservation],
+        contour_slide: f32,
+    ) -> Vec<[Vec2; 2]> {
+        let mut on_contour: Vec<Vec<Option<Vec2>>> =
+            self.contours.iter().map(|c| vec![None; c.len()]).collect();
+        for o in used {
+            if let Some((c, place)) = self.contour_of[o.index]
+                && on_contour[c][place].is_none()
+            {
+                on_contour[c][place] = Some(o.pixel);
+            }
+        }
+        let slide = contour_slide.sqrt();
+        used.iter()
+            .map(|o| {
+                let Some((c, place)) = self.contour_of[o.index] else {
+                    return [Vec2::X, Vec2::Y];
+                };
+                let chain = &on_contour[c];
+                let prev = place.checked_sub(1).and_then(|i| chain[i]);
+                let next = chain.get(place + 1).copied().flatten();
+                let tangent = match (prev, next) {
+                    (Some(a), Some(b)) => b - a,
+                    (Some(a), None) => o.pixel - a,
+                    (None, Some(b)) => b - o.pixel,
+                    (None, None) => Vec2::ZERO,
+                }
+                .try_normalize();
+                match tangent {
+                    Some(t) => [t.perp(), t * slide],
+                    None => [Vec2::X, Vec2::Y],
+                }
+            })
+            .collect()
+    }
+
+    /// The model vertex under each fitted point.
+    pub(crate) fn point_vertices(&self) -> &[u32] {
+        &self.point_vertices
+    }
+
+    /// Fitted point `k`'s model-space position under `weights` (equation (2) at its vertex).
+    pub(crate) fn point_position(&self, k: usize, weights: &[f32; NW]) -> Vec3 {
+        self.landmark(k, weights)
     }
 
     /// Like [`Refiner::new`], and prepares the photometric term on `vertices` (a fixed
@@ -703,7 +758,7 @@ fn from_x(x: &[f32; NX]) -> FaceParams {
 
 /// Huber's loss in the form rho(r) = r^2 for r <= delta, 2 delta r - delta^2 beyond, and
 /// its IRLS weight rho'(r) / (2 r).
-fn huber(r: f64, delta: f64) -> (f64, f64) {
+pub(crate) fn huber(r: f64, delta: f64) -> (f64, f64) {
     if r <= delta {
         (r * r, 1.0)
     } else {
@@ -797,45 +852,15 @@ impl<'a> Problem<'a> {
         }
         let size = if size.is_finite() { size.max(1.0) } else { 1.0 };
 
-        // Contour directions from the neighbouring observed points of each chain.
-        let mut on_contour: Vec<Vec<Option<Vec2>>> = refiner
-            .contours
-            .iter()
-            .map(|c| vec![None; c.len()])
-            .collect();
-        for o in &used {
-            if let Some((c, place)) = refiner.contour_of[o.index]
-                && on_contour[c][place].is_none()
-            {
-                on_contour[c][place] = Some(o.pixel);
-            }
-        }
-        let slide = config.contour_slide.sqrt();
+        let bases = refiner.residual_bases(&used, config.contour_slide);
         let landmarks = used
             .iter()
-            .map(|o| {
-                let mut basis = [Vec2::X, Vec2::Y];
-                if let Some((c, place)) = refiner.contour_of[o.index] {
-                    let chain = &on_contour[c];
-                    let prev = place.checked_sub(1).and_then(|i| chain[i]);
-                    let next = chain.get(place + 1).copied().flatten();
-                    let tangent = match (prev, next) {
-                        (Some(a), Some(b)) => b - a,
-                        (Some(a), None) => o.pixel - a,
-                        (None, Some(b)) => b - o.pixel,
-                        (None, None) => Vec2::ZERO,
-                    }
-                    .try_normalize();
-                    if let Some(t) = tangent {
-                        basis = [t.perp(), t * slide];
-                    }
-                }
-                LandmarkTerm {
-                    landmark: o.index,
-                    observed: o.pixel,
-                    basis,
-                    weight: f64::from(o.weight) / total_weight,
-                }
+            .zip(bases)
+            .map(|(o, basis)| LandmarkTerm {
+                landmark: o.index,
+                observed: o.pixel,
+                basis,
+                weight: f64::from(o.weight) / total_weight,
             })
             .collect();
 
@@ -1344,7 +1369,7 @@ fn dot_f32(a: &[f32], b: &[f32]) -> f32 {
 /// algebra dependency would bring far more than these lines. Outer-product form: each
 /// step updates the remaining rows with a multiply-add along contiguous rows, which
 /// vectorises (the inner-product form is a chain of dependent additions).
-fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> bool {
+pub(crate) fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> bool {
     for k in 0..n {
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let row_k = &mut head[k * n..];
