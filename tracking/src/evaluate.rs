@@ -258,6 +258,13 @@ pub struct Metrics {
     pub weight_jitter: f64,
     /// The same for the landmarks, in NME units.
     pub landmark_jitter: f64,
+    /// How the weights follow the true head yaw ([`yaw_following`]): the predicted weights
+    /// (what a real-footage check can measure), their errors (pred - truth, what should
+    /// not follow the yaw) and the true weights themselves (a few clips' slow random walks
+    /// correlate by chance: the baseline).
+    pub yaw_following: YawFollowing,
+    pub yaw_following_error: YawFollowing,
+    pub yaw_following_truth: YawFollowing,
     pub frames: usize,
 }
 
@@ -270,6 +277,8 @@ struct Accumulator {
     /// report.
     predicted: Vec<[f32; NUM_BLENDSHAPES]>,
     truth: Vec<[f32; NUM_BLENDSHAPES]>,
+    /// The true yaw (degrees) of each of those frames.
+    yaw: Vec<f64>,
     pose: [f64; 3],
     with_face: usize,
     all: usize,
@@ -316,6 +325,7 @@ impl Accumulator {
         let weights = |w: &[f32]| std::array::from_fn(|i| w.get(i).copied().unwrap_or(0.0));
         self.predicted.push(weights(&t.weights));
         self.truth.push(weights(&truth.weights));
+        self.yaw.push(f64::from(truth.rotation_deg[0]));
         let iod = glam::Vec2::from(truth.landmarks_68[OUTER_EYE_CORNERS.0])
             .distance(glam::Vec2::from(truth.landmarks_68[OUTER_EYE_CORNERS.1]));
         self.nme_iod += t
@@ -356,7 +366,16 @@ impl Accumulator {
     fn finish(&self, visible: &[bool; NUM_BLENDSHAPES]) -> (Metrics, ExpressionReport) {
         let n = self.with_face.max(1) as f64;
         let report = expression_report(&self.predicted, &self.truth, visible);
+        let error: Vec<[f32; NUM_BLENDSHAPES]> = self
+            .predicted
+            .iter()
+            .zip(&self.truth)
+            .map(|(p, t)| std::array::from_fn(|i| p[i] - t[i]))
+            .collect();
         let metrics = Metrics {
+            yaw_following: yaw_following(&self.predicted, &self.yaw),
+            yaw_following_error: yaw_following(&error, &self.yaw),
+            yaw_following_truth: yaw_following(&self.truth, &self.yaw),
             expression_mae: self.mae / n,
             expression_mae_visible: report.mae_visible[0],
             landmark_nme: self.nme / n,
@@ -368,6 +387,63 @@ impl Accumulator {
             landmark_jitter: self.jitter_lm / self.pairs.max(1) as f64,
         };
         (metrics, report)
+    }
+}
+
+/// Pearson correlation of two equally long series (0 where either is constant).
+fn pearson(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    if n == 0 {
+        return 0.0;
+    }
+    let mean = |x: &[f64]| x[..n].iter().sum::<f64>() / n as f64;
+    let (ma, mb) = (mean(a), mean(b));
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for k in 0..n {
+        let (x, y) = (a[k] - ma, b[k] - mb);
+        sab += x * y;
+        saa += x * x;
+        sbb += y * y;
+    }
+    let denominator = (saa * sbb).sqrt();
+    if denominator > 0.0 {
+        sab / denominator
+    } else {
+        0.0
+    }
+}
+
+/// How much a series of weights follows the head yaw (issue 32 asks |r| <= 0.3 for every
+/// channel of the tracked weights on real footage).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct YawFollowing {
+    /// The channel with the largest |r| with the yaw, and that r.
+    pub channel: usize,
+    pub r: f64,
+    /// r of eyeBlink_L - eyeBlink_R with the yaw (a tracker that reads a turned head as a
+    /// wink).
+    pub blink_asymmetry_r: f64,
+}
+
+/// [`YawFollowing`] of `predicted` (one row per frame) against `yaw`.
+fn yaw_following(predicted: &[[f32; NUM_BLENDSHAPES]], yaw: &[f64]) -> YawFollowing {
+    let column = |f: &dyn Fn(&[f32; NUM_BLENDSHAPES]) -> f32| -> Vec<f64> {
+        predicted.iter().map(|w| f64::from(f(w))).collect()
+    };
+    let (channel, r) = (0..NUM_BLENDSHAPES)
+        .map(|i| (i, pearson(&column(&|w| w[i]), yaw)))
+        .fold((0, 0.0f64), |best, (i, r)| {
+            if r.abs() > best.1.abs() { (i, r) } else { best }
+        });
+    let blink = |name: &str| ICT_NAMES.iter().position(|n| *n == name);
+    let asymmetry = match (blink("eyeBlink_L"), blink("eyeBlink_R")) {
+        (Some(l), Some(rr)) => pearson(&column(&|w| w[l] - w[rr]), yaw),
+        _ => 0.0,
+    };
+    YawFollowing {
+        channel,
+        r,
+        blink_asymmetry_r: asymmetry,
     }
 }
 
@@ -467,19 +543,10 @@ pub fn expression_report(
         .map(|i| {
             let p: Vec<f64> = predicted[..n].iter().map(|w| f64::from(w[i])).collect();
             let t: Vec<f64> = truth[..n].iter().map(|w| f64::from(w[i])).collect();
-            let mean = |x: &[f64]| x.iter().sum::<f64>() / frames;
-            let (mp, mt) = (mean(&p), mean(&t));
+            let mt = t.iter().sum::<f64>() / frames;
             let mae = |c: &dyn Fn(usize) -> f64| {
                 (0..n).map(|k| (c(k) - t[k]).abs()).sum::<f64>() / frames
             };
-            let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-            for k in 0..n {
-                let (a, b) = (p[k] - mp, t[k] - mt);
-                sab += a * b;
-                saa += a * a;
-                sbb += b * b;
-            }
-            let denominator = (saa * sbb).sqrt();
             let threshold = f64::from(ACTIVE_THRESHOLD);
             let (found, real) = (
                 p.iter().filter(|&&x| x > threshold).count(),
@@ -493,11 +560,7 @@ pub fn expression_report(
                 mae: mae(&|k| p[k]),
                 mae_zero: mae(&|_| 0.0),
                 mae_constant_mean: mae(&|_| mt),
-                correlation: if denominator > 0.0 {
-                    sab / denominator
-                } else {
-                    0.0
-                },
+                correlation: pearson(&p, &t),
                 f1: (found + real > 0).then(|| 2.0 * both as f64 / (found + real) as f64),
                 visible: visible[i],
             }
@@ -860,14 +923,14 @@ impl Evaluation {
             .first()
             .map_or(0, |r| r.channels.iter().filter(|c| c.visible).count());
         let mut out = format!(
-            "{} held-out clips, {} frames, backend {}\n\n| variant | expression MAE (all 53) | MAE ({visible} visible) | landmark NME (box) | NME (inter-ocular) | yaw / pitch / roll error (deg) | w jitter | landmark jitter | face found |\n|---|---|---|---|---|---|---|---|---|\n",
+            "{} held-out clips, {} frames, backend {}\n\n| variant | expression MAE (all 53) | MAE ({visible} visible) | landmark NME (box) | NME (inter-ocular) | yaw / pitch / roll error (deg) | w jitter | landmark jitter | face found | weights following the yaw: channel (r); blink L - R r | errors following the yaw: channel (r); blink L - R r |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
             self.clips,
             self.rows.first().map_or(0, |r| r.1.frames),
             self.backend
         );
         for (name, m) in &self.rows {
             out.push_str(&format!(
-                "| {name} | {:.4} | {:.4} | {:.2} % | {:.2} % | {:.2} / {:.2} / {:.2} | {:.4} | {:.2} % | {:.0} % |\n",
+                "| {name} | {:.4} | {:.4} | {:.2} % | {:.2} % | {:.2} / {:.2} / {:.2} | {:.4} | {:.2} % | {:.0} % | {} ({:.2}); {:.2} | {} ({:.2}); {:.2} |\n",
                 m.expression_mae,
                 m.expression_mae_visible,
                 100.0 * m.landmark_nme,
@@ -877,13 +940,23 @@ impl Evaluation {
                 m.pose_error_deg[2],
                 m.weight_jitter,
                 100.0 * m.landmark_jitter,
-                100.0 * m.detected
+                100.0 * m.detected,
+                ICT_NAMES[m.yaw_following.channel],
+                m.yaw_following.r,
+                m.yaw_following.blink_asymmetry_r,
+                ICT_NAMES[m.yaw_following_error.channel],
+                m.yaw_following_error.r,
+                m.yaw_following_error.blink_asymmetry_r
             ));
         }
         if let Some(r) = self.reports.first() {
+            let truth = self.rows.first().map(|(_, m)| m.yaw_following_truth);
             out.push_str(&format!(
-                "| w = 0 (same frames) | {:.4} | {:.4} | | | | | | |\n| w = each channel's mean (same frames) | {:.4} | {:.4} | | | | | | |\n",
-                r.mae_all[1], r.mae_visible[1], r.mae_all[2], r.mae_visible[2]
+                "| w = 0 (same frames) | {:.4} | {:.4} | | | | | | | | |\n| w = each channel's mean (same frames) | {:.4} | {:.4} | | | | | | | | |\n| the true weights (same frames) | | | | | | | | | {} ({:.2}); {:.2} | |\n",
+                r.mae_all[1], r.mae_visible[1], r.mae_all[2], r.mae_visible[2],
+                truth.map_or("-", |t| ICT_NAMES[t.channel]),
+                truth.map_or(0.0, |t| t.r),
+                truth.map_or(0.0, |t| t.blink_asymmetry_r)
             ));
         }
         out
@@ -963,6 +1036,38 @@ pub fn real_crop_agreement(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn yaw_following_finds_the_channel_and_the_blink_asymmetry_that_follow_yaw() {
+        let index = |name: &str| ICT_NAMES.iter().position(|n| *n == name).unwrap_or(0);
+        let (l, r, jaw) = (index("eyeBlink_L"), index("eyeBlink_R"), index("jawOpen"));
+        let yaw: Vec<f64> = (0..40).map(|k| f64::from(k) - 20.0).collect();
+        let predicted: Vec<[f32; NUM_BLENDSHAPES]> = yaw
+            .iter()
+            .enumerate()
+            .map(|(k, &y)| {
+                let mut w = [0.0; NUM_BLENDSHAPES];
+                // Left blink rises with the yaw, right falls: their difference is yaw itself.
+                w[l] = 0.5 + 0.01 * y as f32;
+                w[r] = 0.5 - 0.01 * y as f32;
+                // jawOpen alternates, unrelated to yaw.
+                w[jaw] = (k % 2) as f32;
+                w
+            })
+            .collect();
+        let found = yaw_following(&predicted, &yaw);
+        assert!(
+            found.channel == l || found.channel == r,
+            "{}",
+            ICT_NAMES[found.channel]
+        );
+        assert!((found.r.abs() - 1.0).abs() < 1e-9, "{found:?}");
+        assert!((found.blink_asymmetry_r - 1.0).abs() < 1e-9, "{found:?}");
+        // Constant series correlate with nothing.
+        assert_eq!(pearson(&[1.0, 1.0, 1.0], &[1.0, 2.0, 3.0]), 0.0);
+        assert_eq!(pearson(&[], &[]), 0.0);
+        assert!((pearson(&[1.0, 2.0, 3.0], &[6.0, 4.0, 2.0]) + 1.0).abs() < 1e-12);
+    }
 
     fn frames(rows: &[[f32; 2]]) -> Vec<[f32; NUM_BLENDSHAPES]> {
         rows.iter()
