@@ -123,8 +123,10 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     if let Some(v) = value("--identity-prior")? {
         identity.prior = v;
     }
-    if let Some(v) = value("--identity-components")? {
-        identity.components = v as usize;
+    if let Some(v) = text("--identity-components") {
+        identity.components = v
+            .parse()
+            .map_err(|e| format!("--identity-components {v:?}: {e}"))?;
     }
     if let Some(dir) = text("--tune-identity") {
         let tuning_clips = Clip::load_all(std::path::Path::new(&dir))?;

@@ -363,6 +363,16 @@ impl Accumulator {
         self.previous = None;
     }
 
+    /// `clip`'s frames refined again by `tracker` from a reset, as a new clip.
+    fn add_retracked(&mut self, tracker: &mut Tracker, outputs: &[FrameOutput], clip: &Clip) {
+        self.new_clip();
+        tracker.reset();
+        let (w, h) = (clip.truth.width, clip.truth.height);
+        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
+            self.add(&tracker.retrack(o, w, h), t);
+        }
+    }
+
     fn finish(&self, visible: &[bool; NUM_BLENDSHAPES]) -> (Metrics, ExpressionReport) {
         let n = self.with_face.max(1) as f64;
         let report = expression_report(&self.predicted, &self.truth, visible);
@@ -685,14 +695,9 @@ pub fn tune_refinement(
         for (o, t) in outputs.iter().zip(&clip.truth.frames) {
             tracknet.add(&o.record, t);
         }
-        let (w, h) = (clip.truth.width, clip.truth.height);
         for (candidate, a) in candidates.iter().zip(&mut acc) {
-            a.new_clip();
             tracker.set_refine(Some(candidate.clone()));
-            tracker.reset();
-            for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-                a.add(&tracker.retrack(o, w, h), t);
-            }
+            a.add_retracked(&mut tracker, &outputs, clip);
         }
     }
     let visible = visible_channels(&face.template);
@@ -765,19 +770,11 @@ pub fn tune_identity(
         let (w, h) = (clip.truth.width, clip.truth.height);
         tracker.set_refine(Some(refine_config));
         let template_model = Arc::new(face.template_blendshapes());
-        template.new_clip();
-        tracker.reset();
-        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-            template.add(&tracker.retrack(o, w, h), t);
-        }
+        template.add_retracked(&mut tracker, &outputs, clip);
         for (candidate, a) in candidates.iter().zip(&mut acc) {
             tracker.set_blendshapes(template_model.clone())?;
             tracker.fit_identity(&outputs, w, h, candidate)?;
-            a.new_clip();
-            tracker.reset();
-            for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-                a.add(&tracker.retrack(o, w, h), t);
-            }
+            a.add_retracked(&mut tracker, &outputs, clip);
         }
     }
     let visible = visible_channels(&face.template);
@@ -874,33 +871,21 @@ pub fn evaluate(
         let (w, h) = (clip.truth.width, clip.truth.height);
         // Refinement on the template.
         tracker.set_refine(Some(refine_config.clone()));
-        tracker.reset();
-        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-            acc[1].add(&tracker.retrack(o, w, h), t);
-        }
+        acc[1].add_retracked(&mut tracker, &outputs, clip);
         // The template with the identity fitted to the whole clip (a clip with no face to
         // fit keeps the template, and this row then equals the one above).
         if let Err(e) = tracker.fit_identity(&outputs, w, h, identity) {
             tracing::warn!("{}: no identity fitted: {e}", clip.dir.display());
         }
-        tracker.reset();
-        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-            acc[2].add(&tracker.retrack(o, w, h), t);
-        }
+        acc[2].add_retracked(&mut tracker, &outputs, clip);
         // Personalized: ModelNet on diverse frames of this clip.
         let mut model_net = ModelNet::load(&tracker.manifest, tracker.backend(), config.threads)?;
         let (corrections, _) =
             crate::personalize::personalize(&mut model_net, &outputs, personalize_frames)?;
         tracker.set_blendshapes(Arc::new(face.personalize(&corrections)?))?;
-        tracker.reset();
-        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-            acc[3].add(&tracker.retrack(o, w, h), t);
-        }
+        acc[3].add_retracked(&mut tracker, &outputs, clip);
         tracker.set_smoothing(config.smoothing.clone());
-        tracker.reset();
-        for (o, t) in outputs.iter().zip(&clip.truth.frames) {
-            acc[4].add(&tracker.retrack(o, w, h), t);
-        }
+        acc[4].add_retracked(&mut tracker, &outputs, clip);
     }
     let visible = visible_channels(&face.template);
     let (metrics, reports): (Vec<Metrics>, Vec<ExpressionReport>) =

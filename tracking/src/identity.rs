@@ -208,16 +208,20 @@ pub fn fit_identity(
     let delta = f64::from(refine.huber_scale);
     let lambda = f64::from(config.prior);
 
-    let offset = |alpha: &[f64], k: usize| -> Vec3 {
-        (0..k_count).fold(Vec3::ZERO, |acc, j| acc + alpha[j] as f32 * at(j, k))
+    // The identity offset at every point, once per alpha (every frame shares it).
+    let offsets = |alpha: &[f64]| -> Vec<Vec3> {
+        (0..n_points)
+            .map(|k| (0..k_count).fold(Vec3::ZERO, |acc, j| acc + alpha[j] as f32 * at(j, k)))
+            .collect()
     };
     // Energy and weighted squared pixel residual; None when a point falls behind the camera.
     let energy = |alpha: &[f64]| -> Option<(f64, f64)> {
+        let offset = offsets(alpha);
         let mut e = 0.0;
         let mut sq = 0.0;
         for f in &prepared {
             for &(k, observed, b, c) in &f.points {
-                let p = f.rotation * (f.positions[k] + offset(alpha, k)) + f.translation;
+                let p = f.rotation * (f.positions[k] + offset[k]) + f.translation;
                 let d = intrinsics.project(p)? - observed;
                 let r = Vec2::new(b[0].dot(d), b[1].dot(d)) * f.scale;
                 e += c * per_frame * huber(f64::from(r.length()), delta).0;
@@ -243,9 +247,10 @@ pub fn fit_identity(
             hj[j] = lambda;
         }
         let mut row = vec![0.0f64; k_count];
+        let offset = offsets(&alpha);
         for f in &prepared {
             for &(k, observed, b, c) in &f.points {
-                let p = f.rotation * (f.positions[k] + offset(&alpha, k)) + f.translation;
+                let p = f.rotation * (f.positions[k] + offset[k]) + f.translation;
                 let (Some(pixel), Some(jp)) =
                     (intrinsics.project(p), intrinsics.project_jacobian(p))
                 else {
