@@ -419,14 +419,10 @@ class TrainedNetworks:
     checkpoint: dict
 
 
-def load_networks(path, model_net_from=None) -> TrainedNetworks:
-    """Rebuilds TrackNet and ModelNet from a checkpoint's config and weights (shared by the
-    export and the evaluation; the priors are buffers, so they come with the weights).
-    `model_net_from`: an exported models directory whose ModelNet and R_0^t replace the
-    checkpoint's (`ExportedModelNet`)."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    cfg = ckpt["config"]
-    track = TrackNet(
+def build_track_net(cfg: dict) -> TrackNet:
+    """An untrained TrackNet built as a checkpoint's config says (its weights are loaded
+    after; the priors are buffers, so they come with them)."""
+    return TrackNet(
         width=cfg["track_width"],
         rotation_scale=cfg.get("track_rotation_scale", 1.0),
         translation_scale=cfg.get("track_translation_scale", 10.0),
@@ -436,6 +432,16 @@ def load_networks(path, model_net_from=None) -> TrainedNetworks:
         w_head=cfg.get("track_w_head", "shared"),
         w_hidden=cfg.get("track_w_hidden", 256),
     )
+
+
+def load_networks(path, model_net_from=None) -> TrainedNetworks:
+    """Rebuilds TrackNet and ModelNet from a checkpoint's config and weights (shared by the
+    export and the evaluation; the priors are buffers, so they come with the weights).
+    `model_net_from`: an exported models directory whose ModelNet and R_0^t replace the
+    checkpoint's (`ExportedModelNet`)."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    cfg = ckpt["config"]
+    track = build_track_net(cfg)
     model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
     track.load_state_dict(ckpt["track_net"])
     # A kept warm-up checkpoint (keep.py) has no ModelNet: it was never trained, and a

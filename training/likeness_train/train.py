@@ -40,7 +40,8 @@ from .data import Batch, SyntheticData, concat_batches, mirror_batch, mirror_cha
 from .dataset import CachedData, CacheUnion
 from .export import IMAGE_MEAN, IMAGE_STD, git_commit
 from .face import FaceModel
-from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, ModelNet, TrackNet, TrackParams
+from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, ModelNet, TrackNet, TrackParams, build_track_net
+from .widen import widen_track, widths_match
 
 
 WARMUP_CHECKPOINT = "warmup.pt"  # the checkpoint at the end of stage 0, beside checkpoint.pt
@@ -241,9 +242,19 @@ class Trainer:
             raise ValueError(f"--init-track-from {path}: not a training checkpoint (no track_net and config)")
         for key in TRACK_SHAPE_KEYS:
             theirs = state["config"].get(key)
+            if key == "track_width" and isinstance(theirs, (int, float)) and widths_match(theirs, self.cfg.track_width):
+                continue  # a narrower TrackNet is widened below
             if theirs != getattr(self.cfg, key):
                 raise ValueError(f"--init-track-from {path}: its TrackNet has {key} = {theirs!r}, this run builds {getattr(self.cfg, key)!r}")
-        self.track.load_state_dict(state["track_net"])
+        theirs = state["config"]["track_width"]
+        if theirs == self.cfg.track_width:
+            self.track.load_state_dict(state["track_net"])
+            return
+        # A narrower TrackNet: the same function in the wider trunk (widen.py says how).
+        narrow = build_track_net(state["config"])
+        narrow.load_state_dict(state["track_net"])
+        widen_track(narrow, self.track, seed=self.cfg.seed)
+        print(f"TrackNet widened from width {theirs} to {self.cfg.track_width} (function kept)", file=sys.stderr, flush=True)
 
     def extra_cache(self, directory: Path) -> CachedData:
         """One `--extra-data` cache, with on-the-fly rendering of its seed for what it lacks;

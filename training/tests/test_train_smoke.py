@@ -299,7 +299,8 @@ def test_an_unknown_precision_is_refused(tmp_path):
 
 def test_init_track_from_starts_from_another_runs_tracknet(tmp_path):
     """--init-track-from: TrackNet's weights and BatchNorm statistics come from the
-    checkpoint, ModelNet's and the optimiser do not; a TrackNet built otherwise is refused,
+    checkpoint, ModelNet's and the optimiser do not; a narrower TrackNet is widened with its
+    function kept, a TrackNet built otherwise (or wider) is refused,
     and a run resumed from its own checkpoint keeps its own weights."""
     first = Trainer(_config(landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0), tmp_path / "first")
     first.run(log_every=1)
@@ -314,8 +315,18 @@ def test_init_track_from_starts_from_another_runs_tracknet(tmp_path):
     resumed = Trainer(_config(landmark_warmup_steps=2, stage1_steps=0, stage2_steps=0, seed=5, init_track_from=str(first.checkpoint_path)), tmp_path / "second")
     assert resumed.resume()
     assert all(torch.equal(v, trained[k]) for k, v in resumed.track.state_dict().items())
+    # A wider TrackNet starts from the narrower one's function (widen.py), on the trainer's
+    # own network, not just in widen_track's unit test.
+    wide = Trainer(_config(track_width=0.5, init_track_from=str(first.checkpoint_path)), tmp_path / "wide")
+    size = first.cfg.input_size
+    images = torch.randn(2, 3, size, size, generator=torch.Generator().manual_seed(4))
+    with torch.no_grad():
+        first.track.eval()
+        wide.track.eval()
+        assert torch.allclose(first.track(images).w, wide.track(images).w, atol=2e-5)
+    wide.save()  # and a wider TrackNet cannot start a narrower one
     with pytest.raises(ValueError, match="track_width"):
-        Trainer(_config(track_width=0.5, init_track_from=str(first.checkpoint_path)), tmp_path / "wide")
+        Trainer(_config(init_track_from=str(wide.checkpoint_path)), tmp_path / "narrow")
     with pytest.raises(FileNotFoundError):
         Trainer(_config(init_track_from=str(tmp_path / "none.pt")), tmp_path / "none")
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
