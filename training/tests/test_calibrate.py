@@ -127,3 +127,23 @@ def test_calibrate_refuses_people_that_are_trained_on_or_held_out(checkpoint, tm
     with pytest.raises(SystemExit, match="error"):
         calibrate_main(["--checkpoint", str(tmp_path / "missing.pt"), "--data", str(held), "--out", str(out)])
     assert not out.exists()
+
+
+def test_validate_reports_the_calibrated_mae_on_other_people(checkpoint, tmp_path, capsys):
+    out = tmp_path / "validated.pt"
+    calibrate_main(["--checkpoint", str(checkpoint), "--data", str(_cache(tmp_path, 0)), "--out", str(out), "--iterations", "50", "--validate", str(_cache(tmp_path, 5))])
+    printed = capsys.readouterr().out
+    assert "validation set" in printed
+    validation = torch.load(out, weights_only=False)["w_calibration"]["validation"]
+    assert validation["seed"] == 5 and validation["frames"] == 4
+    # An independent recomputation: the calibrated TrackNet over the same cache.
+    from likeness_train.calibrate import predict_w
+    from likeness_train.dataset import CachedData
+
+    predicted, truth = predict_w(load_networks(out).track, CachedData(tmp_path / "cache-s5"))
+    assert validation["mae_calibrated"] == pytest.approx(float((predicted - truth).abs().mean()), abs=1e-6)
+    assert validation["mae_zero"] == pytest.approx(float(truth.abs().mean()), abs=1e-7)
+    with pytest.raises(SystemExit, match="in-sample"):
+        calibrate_main(["--checkpoint", str(checkpoint), "--data", str(tmp_path / "cache-s0"), "--out", str(tmp_path / "x.pt"), "--validate", str(tmp_path / "cache-s0")])
+    with pytest.raises(SystemExit, match="trained on"):
+        calibrate_main(["--checkpoint", str(checkpoint), "--data", str(tmp_path / "cache-s0"), "--out", str(tmp_path / "y.pt"), "--validate", str(_cache(tmp_path, 1))])
