@@ -109,6 +109,15 @@ def refused_seed(seed: int, config: dict) -> str | None:
     return None
 
 
+def refused_cache(cache: CachedData, config: dict) -> str | None:
+    """Why this cache's frames cannot calibrate or judge this checkpoint's TrackNet (its
+    people, `refused_seed`, or its image size), or None."""
+    size = config.get("input_size")
+    if cache.spec.image_size != size:
+        return f"its images are {cache.spec.image_size} px, this TrackNet reads {size} px"
+    return refused_seed(cache.spec.seed, config)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", type=Path, required=True)
@@ -130,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
         cache = CachedData(args.data)
     except (FileNotFoundError, ValueError, RuntimeError, KeyError) as e:
         raise SystemExit(f"error: {e}") from e
-    why = refused_seed(cache.spec.seed, nets.config)
+    why = refused_cache(cache, nets.config)
     if why:
         raise SystemExit(f"error: {args.data}: {why}; calibrate on seed 0 (see --help)")
     validation = None
@@ -139,7 +148,7 @@ def main(argv: list[str] | None = None) -> None:
             validation = CachedData(args.validate)
         except (FileNotFoundError, ValueError) as e:
             raise SystemExit(f"error: --validate: {e}") from e
-        why = refused_seed(validation.spec.seed, nets.config)
+        why = refused_cache(validation, nets.config)
         if why is None and validation.spec.seed == cache.spec.seed:
             why = "it is the calibration's own seed, on which the map is in-sample"
         if why:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from .calibrate import fit_calibration, refused_seed
+from .calibrate import fit_calibration, refused_cache, refused_seed
 from .data import SyntheticData, mirror_channels
 from .dataset import CachedData
 from .face import FaceModel
@@ -85,9 +85,11 @@ def flip_probe(nets, calibration_dir: Path, validation_dir: Path) -> dict:
     mirror = mirror_channels(list(names))
     calibration, validation = CachedData(calibration_dir), CachedData(validation_dir)
     for cache in (calibration, validation):
-        why = refused_seed(cache.spec.seed, nets.config)
+        why = refused_cache(cache, nets.config)
         if why:
             raise ValueError(f"{cache.directory}: {why}")
+    if calibration.spec.seed == validation.spec.seed:
+        raise ValueError(f"{validation.directory}: the validation people are the calibration's (seed {calibration.spec.seed}), on which the map is in-sample")
     cp, ca, ct = flip_averaged(raw.eval(), calibration, mirror)
     vp, va, vt = flip_averaged(raw.eval(), validation, mirror)
     out = {"calibration": str(calibration_dir), "validation": str(validation_dir), "frames": int(vt.shape[0]), "mae_zero": float(vt.abs().mean())}
@@ -126,6 +128,11 @@ def main(argv: list[str] | None = None) -> None:
         nets = load_networks(args.checkpoint)
     except (FileNotFoundError, ValueError, RuntimeError, KeyError) as e:
         raise SystemExit(f"error: {args.checkpoint}: {e}") from e
+    if args.flip_calibration is None:
+        # People the checkpoint trained on would flatter every row (held-out ones are refused above).
+        why = refused_seed(args.seed, nets.config)
+        if why:
+            parser.error(f"--seed {args.seed}: {why}")
     t0 = time.time()
     result: dict = {"checkpoint": str(args.checkpoint)}
     if args.flip_calibration is not None:
@@ -146,8 +153,12 @@ def main(argv: list[str] | None = None) -> None:
             result["variants"][name] = row
             print(f"{name:<26} {row['mae']:>7.4f} {row['mae_zero']:>7.4f}", flush=True)
     result["elapsed_s"] = round(time.time() - t0, 1)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    try:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=2) + "\n")
+    except OSError as e:
+        print(json.dumps(result, indent=2))  # the measurement is not lost
+        raise SystemExit(f"error: cannot write {args.out}: {e}") from e
     print(f"wrote {args.out}", file=sys.stderr)
 
 

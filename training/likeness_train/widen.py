@@ -9,9 +9,10 @@ random near 1/k and sum to 1: the widened network computes the same function (up
 float rounding) while the copies get different gradients, so training can make them
 differ (an even split would keep the copies identical forever).
 
-Owns: the channel maps and the state-dict rewrite for `networks.TrackNet` with the
-ResNet-18 trunk. Must not: change anything else of the checkpoint (heads' outputs, pose and
-light priors, the w calibration are carried over unchanged)."""
+Owns: the channel maps and the weight rewrite for `networks.TrackNet` with the ResNet-18
+trunk. Must not: change anything but the trunk's width (the heads' outputs and the pose
+and light priors are copied unchanged); a checkpoint's w calibration is not TrackNet's and
+is not carried (a widened run is calibrated again, as every run is)."""
 
 from __future__ import annotations
 

@@ -147,3 +147,12 @@ def test_validate_reports_the_calibrated_mae_on_other_people(checkpoint, tmp_pat
         calibrate_main(["--checkpoint", str(checkpoint), "--data", str(tmp_path / "cache-s0"), "--out", str(tmp_path / "x.pt"), "--validate", str(tmp_path / "cache-s0")])
     with pytest.raises(SystemExit, match="trained on"):
         calibrate_main(["--checkpoint", str(checkpoint), "--data", str(tmp_path / "cache-s0"), "--out", str(tmp_path / "y.pt"), "--validate", str(_cache(tmp_path, 1))])
+
+
+def test_a_cache_of_another_image_size_is_refused_by_name(checkpoint, tmp_path):
+    directory = tmp_path / "cache-64"
+    write_cache(directory, CacheSpec(seed=0, batches=1, people_per_batch=1, frames=2, image_size=64, batches_per_shard=1), workers=1)
+    with pytest.raises(SystemExit, match="64 px, this TrackNet reads 128 px"):
+        calibrate_main(["--checkpoint", str(checkpoint), "--data", str(directory), "--out", str(tmp_path / "c.pt")])
+    with pytest.raises(SystemExit, match="64 px"):
+        calibrate_main(["--checkpoint", str(checkpoint), "--data", str(_cache(tmp_path, 0)), "--out", str(tmp_path / "d.pt"), "--validate", str(directory)])

@@ -42,3 +42,13 @@ def test_held_out_seed_is_refused(tmp_path):
 
     with pytest.raises(SystemExit):
         error_sources.main(["--checkpoint", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o.json"), "--seed", str(HELD_OUT_SEED)])
+
+
+def test_people_the_checkpoint_trained_on_are_refused(tmp_path):
+    from likeness_train.train import TrainConfig, Trainer
+
+    trainer = Trainer(TrainConfig(people_per_batch=1, frames=2, landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0, track_width=0.25, model_width=0.25, seed=3), tmp_path / "run")
+    trainer.save()
+    with pytest.raises(SystemExit):
+        error_sources.main(["--checkpoint", str(trainer.checkpoint_path), "--out", str(tmp_path / "o.json"), "--seed", "3"])
+    assert not (tmp_path / "o.json").exists()
