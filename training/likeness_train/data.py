@@ -51,6 +51,59 @@ class Batch:
     index: int = -1  # batch index k (people k*P .. k*P + P - 1)
 
 
+# --- photometric augmentation -------------------------------------------------------------
+
+# At strength 1: the per-image, per-colour gain's log standard deviation, the largest
+# sensor-noise standard deviation (of [0, 1] pixels), the probability of a blur and its
+# range of Gaussian sigmas (px). Mild on purpose: the held-out frames are clean renders,
+# so these only have to keep the network from learning the exact pixels of the ~4 views of
+# each cached image it sees over a fine-tune (issue 31's seen/unseen gap, 0.041 / 0.0465).
+AUGMENT_GAIN_LOG_SD = 0.15
+AUGMENT_NOISE_MAX = 0.03
+AUGMENT_BLUR_PROBABILITY = 0.3
+AUGMENT_BLUR_SIGMA = (0.3, 0.9)
+
+
+def photometric_batch(batch: Batch, strength: float, generator: torch.Generator) -> Batch:
+    """The batch's images with a per-image colour gain, sensor noise and sometimes a slight
+    blur, drawn from `generator` at `strength` in [0, 1] (0 returns the batch unchanged).
+
+    The gain multiplies the whole image, which is what scaling that colour's SH lighting
+    does to a Lambertian render (shading is linear in gamma), so the light target gamma is
+    scaled by the same gain and stays the truth of the image; the background (not lit by
+    gamma) is scaled too, as a camera's white balance would. Noise and blur change no
+    label. Geometry is untouched: landmarks, pose and w stay exact."""
+    if not 0.0 <= strength <= 1.0:
+        raise ValueError(f"augmentation strength must be within [0, 1], got {strength}")
+    if strength == 0.0:
+        return batch
+    images = batch.images
+    n = images.shape[0]
+    gain = torch.exp(torch.randn(n, 3, generator=generator) * (AUGMENT_GAIN_LOG_SD * strength))
+    out = images * gain[:, :, None, None]
+    sigma_noise = torch.rand(n, generator=generator) * (AUGMENT_NOISE_MAX * strength)
+    out = out + torch.randn(out.shape, generator=generator) * sigma_noise[:, None, None, None]
+    blur = torch.rand(n, generator=generator) < AUGMENT_BLUR_PROBABILITY * strength
+    low, high = AUGMENT_BLUR_SIGMA
+    sigma_blur = low + (high - low) * torch.rand(n, generator=generator)
+    if bool(blur.any()):
+        offsets = torch.arange(-2, 3, dtype=torch.float32)
+        kernels = torch.exp(-0.5 * (offsets[None] / sigma_blur[:, None]) ** 2)
+        kernels = kernels / kernels.sum(1, keepdim=True)  # [n, 5], separable
+        blurred = []
+        for i in torch.nonzero(blur).flatten().tolist():
+            k = kernels[i]
+            x = F.pad(out[i : i + 1], (2, 2, 2, 2), mode="replicate")
+            x = F.conv2d(x, k.view(1, 1, 1, 5).expand(3, 1, 1, 5), groups=3)
+            x = F.conv2d(x, k.view(1, 1, 5, 1).expand(3, 1, 5, 1), groups=3)
+            blurred.append((i, x[0]))
+        out = out.clone()
+        for i, x in blurred:
+            out[i] = x
+    gamma = batch.gamma * gain.repeat_interleave(9, dim=1)
+    return dataclasses.replace(batch, images=out.clamp(0.0, 1.0), gamma=gamma)
+
+
 # --- mirrored batches ---------------------------------------------------------------------
 
 # The iBUG 68-point scheme's left-right correspondence: landmark k of a face seen in a

@@ -36,7 +36,7 @@ from torch import nn
 
 from . import losses as L
 from . import render as R
-from .data import Batch, SyntheticData, concat_batches, mirror_batch, mirror_channels
+from .data import Batch, SyntheticData, concat_batches, mirror_batch, mirror_channels, photometric_batch
 from .dataset import CachedData, CacheUnion
 from .export import IMAGE_MEAN, IMAGE_STD, git_commit
 from .face import FaceModel
@@ -95,6 +95,11 @@ class TrainConfig:
     # left and right channels swapped), in every stage: twice the distinct faces, and no
     # left-right bias for w to learn.
     flip_probability: float = 0.5
+    # Not in the paper (0 = off): the warm-up's images get a colour gain (with the light
+    # target scaled to match), sensor noise and sometimes a slight blur at this strength in
+    # [0, 1] (data.photometric_batch), drawn from (seed, step) so a resumed run draws the
+    # same. Warm-up only: stages 1 and 2 compare renders with the input image itself.
+    photometric_augment: float = 0.0
     people_per_batch: int = 4
     frames: int = 4  # N, as the paper
     # Stage 0 (not in the paper, 0 = off): TrackNet alone on L_lm + L_reg with the template
@@ -475,6 +480,9 @@ class Trainer:
         batch = self.read_batch()
         batch = mirror_batch(batch, self.flips(batch), self.mirror)
         if self.stage == 0:
+            if self.cfg.photometric_augment > 0:
+                generator = torch.Generator().manual_seed(self.cfg.seed * 1_000_003 + self.step + 7_919_000_000)
+                batch = photometric_batch(batch, self.cfg.photometric_augment, generator)
             return self.warmup_step(batch)
         frozen_tracking = self.tracking_frozen()
         self.track.train(not frozen_tracking)
@@ -692,7 +700,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     defaults = TrainConfig()
     for name in ("input_size", "people_per_batch", "frames", "landmark_warmup_steps", "stage1_track_frozen_steps", "stage1_steps", "stage2_steps", "seed", "threads", "track_w_hidden", "warmup_lr_ramp_steps", "warmup_batches_per_step"):
         parser.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(defaults, name))
-    for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "lr_decay_from", "lr_final_ratio", "checkpoint_every_s", "warmup_supervision", "warmup_light_supervision", "stage1_track_lr_ratio", "track_rotation_scale", "track_translation_scale", "track_w_gain", "track_w_grad_scale", "warmup_pose_supervision", "flip_probability"):
+    for name in ("track_width", "model_width", "lr_stage1", "lr_stage2", "lr_decay_from", "lr_final_ratio", "checkpoint_every_s", "warmup_supervision", "warmup_light_supervision", "stage1_track_lr_ratio", "track_rotation_scale", "track_translation_scale", "track_w_gain", "track_w_grad_scale", "warmup_pose_supervision", "flip_probability", "photometric_augment"):
         parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(defaults, name))
     for name in ("expression_corrections", "dynamic_albedo", "parsing_loss", "gradient_loss"):
         parser.add_argument("--no-" + name.replace("_", "-"), dest=name, action="store_false")
@@ -728,7 +736,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
         "landmark_warmup_steps": (0, float("inf")), "stage1_steps": (0, float("inf")), "stage2_steps": (0, float("inf")),
         "lr_decay_from": (0.0, 1.0), "lr_final_ratio": (0.0, 1.0), "track_w_grad_scale": (1e-6, 1e6), "warmup_supervision": (0.0, 1e6),
         "warmup_light_supervision": (0.0, 1e6), "stage1_track_frozen_steps": (0, float("inf")), "stage1_track_lr_ratio": (0.0, 1e3),
-        "warmup_pose_supervision": (0.0, 1e6), "flip_probability": (0.0, 1.0), "track_w_hidden": (1, 8192),
+        "warmup_pose_supervision": (0.0, 1e6), "flip_probability": (0.0, 1.0), "photometric_augment": (0.0, 1.0), "track_w_hidden": (1, 8192),
         "warmup_lr_ramp_steps": (0, float("inf")), "warmup_batches_per_step": (1, 64),
     }
     for name, (low, high) in checks.items():
