@@ -77,7 +77,10 @@ def predict_w(track: torch.nn.Module, cache: CachedData, log=None) -> tuple[torc
     with torch.no_grad():
         for k in range(len(cache)):
             batch = cache.batch(k, people)
-            predicted.append(track(normalise(batch.images)).w)
+            if getattr(track, "context_net", None) is not None:  # each frame with its person's others
+                predicted.append(track.forward_people(normalise(batch.images), batch.people, batch.frames).w)
+            else:
+                predicted.append(track(normalise(batch.images)).w)
             truth.append(batch.weights)
             if log and (k + 1) % 64 == 0:
                 log(f"batch {k + 1}/{len(cache)}")

@@ -237,6 +237,8 @@ class TrackNet(nn.Module):
         input_size: int = 128,
         w_head: str = "shared",
         w_hidden: int = 256,
+        context: bool = False,
+        context_hidden: int = 256,
     ):
         super().__init__()
         if w_head not in TRACK_W_HEADS:
@@ -257,6 +259,20 @@ class TrackNet(nn.Module):
             # it had moved, and the outputs start near the bias anyway.
             with torch.no_grad():
                 self.w_head[2].weight.mul_(0.1)
+        # Not in the paper: the person's context for the w head (`context=True`, issue 31).
+        # One image cannot tell a person's wide eyes from eyeWide or their lips from
+        # mouthLowerDown (error_sources.py: the identity costs ~0.005 of the w MAE); the w
+        # head also reads the mean trunk features of the person's other frames, through a
+        # small MLP added to the frame's own features. Its last layer starts at zero, so a
+        # context TrackNet starts as the TrackNet it was initialised from.
+        self.context_net = None
+        if context:
+            if w_head != "own":
+                raise ValueError("a context TrackNet needs w_head='own' (the context feeds the w head only)")
+            features = self.encoder.out_features
+            self.context_net = nn.Sequential(nn.Linear(features, context_hidden), nn.ReLU(inplace=True), nn.Linear(context_hidden, features))
+            nn.init.zeros_(self.context_net[2].weight)
+            nn.init.zeros_(self.context_net[2].bias)
         # w = sigmoid(x) starts at 0.5 with zero logits; start near 0 instead (sparse prior).
         # Output scales: euler = rotation_scale * raw (radians), translation = prior +
         # translation_scale * raw (cm), w = sigmoid(w_gain * raw). They set how strongly each
@@ -273,16 +289,28 @@ class TrackNet(nn.Module):
             gamma_prior = torch.zeros(27)
         self.register_buffer("gamma_prior", gamma_prior.float().clone())
 
-    def forward(self, images: torch.Tensor) -> TrackParams:
-        return self.heads(self.encoder(images))
+    def forward(self, images: torch.Tensor, context: torch.Tensor | None = None) -> TrackParams:
+        return self.heads(self.encoder(images), context)
 
-    def heads(self, features: torch.Tensor) -> TrackParams:
-        """The outputs from the trunk's features [B, F] (`encoder(images)`); training measures
-        each output's gradient at the features through this split."""
+    def forward_people(self, images: torch.Tensor, people: int, frames: int) -> TrackParams:
+        """The outputs for P people x N frames (person-major), each frame's context the
+        others of its person (`leave_one_out_context`); a TrackNet without a context
+        branch just runs each image."""
+        features = self.encoder(images)
+        context = leave_one_out_context(features, people, frames) if self.context_net is not None else None
+        return self.heads(features, context)
+
+    def heads(self, features: torch.Tensor, context: torch.Tensor | None = None) -> TrackParams:
+        """The outputs from the trunk's features [B, F] (`encoder(images)`) and, for a context
+        TrackNet, the person's context features [B, F]; training measures each output's
+        gradient at the features through this split."""
+        if self.context_net is not None and context is None:
+            raise ValueError("this TrackNet reads the person's context: run forward_people, or pass context features")
         hidden = self.fc(features)
         raw = self.head(hidden)
         if self.w_head is not None:
-            raw = torch.cat([self.w_head(features), raw[:, NUM_BLENDSHAPES:]], dim=1)
+            w_features = features if self.context_net is None else features + self.context_net(context)
+            raw = torch.cat([self.w_head(w_features), raw[:, NUM_BLENDSHAPES:]], dim=1)
         elif self.training and self.w_grad_scale != 1.0:
             # Same values; the gradient that w sends into the shared trunk is scaled (see
             # train.TrainConfig.track_w_grad_scale). Only training sees it, so exports do not.
@@ -294,6 +322,19 @@ class TrackNet(nn.Module):
         translation = self.translation_prior + self.translation_scale * raw[:, NUM_BLENDSHAPES + 3 : NUM_BLENDSHAPES + 6]
         gamma = self.gamma_prior + raw[:, NUM_BLENDSHAPES + 6 :]
         return TrackParams(torch.sigmoid(logits), euler, translation, gamma, w_logits=logits)
+
+
+def leave_one_out_context(features: torch.Tensor, people: int, frames: int) -> torch.Tensor:
+    """Each frame's context: the mean trunk features [B, F] of its person's other frames
+    (B = people x frames, person-major). Leave-one-out, because at inference the context
+    comes from a few chosen frames of the person, mostly not the frame tracked."""
+    if frames < 2:
+        raise ValueError(f"a person's context needs at least 2 frames per person, got {frames}")
+    if features.shape[0] != people * frames:
+        raise ValueError(f"{features.shape[0]} feature rows are not {people} people x {frames} frames")
+    f = features.view(people, frames, -1)
+    others = (f.sum(1, keepdim=True) - f) / (frames - 1)
+    return others.reshape(features.shape)
 
 
 # Where the pieces of a w calibration start (`WCalibration`): denser near 0, where the
@@ -431,6 +472,7 @@ def build_track_net(cfg: dict) -> TrackNet:
         input_size=cfg["input_size"],
         w_head=cfg.get("track_w_head", "shared"),
         w_hidden=cfg.get("track_w_hidden", 256),
+        context=cfg.get("track_context", False),
     )
 
 

@@ -40,7 +40,7 @@ from .data import Batch, SyntheticData, concat_batches, mirror_batch, mirror_cha
 from .dataset import CachedData, CacheUnion
 from .export import IMAGE_MEAN, IMAGE_STD, git_commit
 from .face import FaceModel
-from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, ModelNet, TrackNet, TrackParams, build_track_net
+from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, ModelNet, TrackNet, TrackParams, build_track_net, leave_one_out_context
 from .widen import widen_track, widths_match
 
 
@@ -48,10 +48,10 @@ WARMUP_CHECKPOINT = "warmup.pt"  # the checkpoint at the end of stage 0, beside 
 # Configuration a resumed run must share with its checkpoint (Trainer.resume).
 RESUME_KEYS = (
     "input_size", "track_width", "model_width", "track_pool", "track_w_head", "track_w_hidden", "people_per_batch", "frames",
-    "landmark_warmup_steps", "warmup_batches_per_step", "seed",
+    "landmark_warmup_steps", "warmup_batches_per_step", "seed", "track_context",
 )
 # What fixes TrackNet's shape: a checkpoint's TrackNet loads only into one built the same.
-TRACK_SHAPE_KEYS = ("input_size", "track_width", "track_pool", "track_w_head", "track_w_hidden")
+TRACK_SHAPE_KEYS = ("input_size", "track_width", "track_pool", "track_w_head", "track_w_hidden", "track_context")
 # How the supervised w term compares w with the truth (TrainConfig.w_loss says why).
 W_LOSSES = ("sq", "l1", "bce_l1")
 # The networks' arithmetic (TrainConfig.precision says why).
@@ -80,6 +80,10 @@ class TrainConfig:
     # channel's average (issue 31).
     track_w_head: str = "own"
     track_w_hidden: int = 256
+    # Not in the paper: the w head also reads the person's other frames (networks.TrackNet,
+    # `context`). A warm-up probe so far (stages 1 and 2, the export and the Rust tracker do
+    # not run it): initialised from a plain TrackNet, it starts as that network.
+    track_context: bool = False
     # The supervised w term per image (weight `warmup_supervision`): "sq" = sum_i (w_i -
     # w_i^true)^2 as before: through the sigmoid at w ~ 0.08 its gradient is ~0.07 of the
     # error and it sat at the constant-mean floor; "l1" = sum_i |w_i - w_i^true|, the metric;
@@ -211,8 +215,10 @@ class Trainer:
             width=config.track_width, gamma_prior=gamma_prior, rotation_scale=config.track_rotation_scale,
             translation_scale=config.track_translation_scale, w_gain=config.track_w_gain,
             w_grad_scale=config.track_w_grad_scale, pool=config.track_pool, input_size=config.input_size,
-            w_head=config.track_w_head, w_hidden=config.track_w_hidden,
+            w_head=config.track_w_head, w_hidden=config.track_w_hidden, context=config.track_context,
         )
+        if config.track_context and (config.stage1_steps > 0 or config.stage2_steps > 0):
+            raise ValueError("track_context is a warm-up probe so far: run it with stage1_steps = stage2_steps = 0")
         if config.init_track_from:
             self.init_track(Path(config.init_track_from))
         self.mirror = mirror_channels(self.model.expression_names)
@@ -247,11 +253,22 @@ class Trainer:
             raise ValueError(f"--init-track-from {path}: not a training checkpoint (no track_net and config)")
         for key in TRACK_SHAPE_KEYS:
             theirs = state["config"].get(key)
+            if key == "track_context":
+                theirs = bool(theirs)  # checkpoints from before the option have none
             if key == "track_width" and isinstance(theirs, (int, float)) and widths_match(theirs, self.cfg.track_width):
                 continue  # a narrower TrackNet is widened below
+            if key == "track_context" and not theirs and self.cfg.track_context:
+                continue  # a plain TrackNet: its context branch starts at zero, below
             if theirs != getattr(self.cfg, key):
                 raise ValueError(f"--init-track-from {path}: its TrackNet has {key} = {theirs!r}, this run builds {getattr(self.cfg, key)!r}")
         theirs = state["config"]["track_width"]
+        if self.cfg.track_context and not state["config"].get("track_context"):
+            if theirs != self.cfg.track_width:
+                raise ValueError(f"--init-track-from {path}: a context TrackNet starts from a plain one of the same width only")
+            missing, unexpected = self.track.load_state_dict(state["track_net"], strict=False)
+            if unexpected or any(not k.startswith("context_net.") for k in missing):
+                raise ValueError(f"--init-track-from {path}: weights do not match (missing {missing}, unexpected {unexpected})")
+            return
         if theirs == self.cfg.track_width:
             self.track.load_state_dict(state["track_net"])
             return
@@ -437,7 +454,8 @@ class Trainer:
         self.track.train()
         with self.autocast():
             features = self.track.encoder(self.normalise(batch.images))
-            params = as_float(self.track.heads(features))
+            context = leave_one_out_context(features, batch.people, batch.frames) if self.cfg.track_context else None
+            params = as_float(self.track.heads(features, context))
         idx = self.region.landmarks_68
         neutral = self.region.neutral[idx]
         deltas = self.region.expression_deltas[:, idx]
@@ -720,6 +738,7 @@ def config_from_args(argv: list[str] | None = None) -> tuple[TrainConfig, Path]:
     )
     parser.add_argument("--track-pool", choices=TRACK_POOLS, default=defaults.track_pool)
     parser.add_argument("--track-w-head", choices=TRACK_W_HEADS, default=defaults.track_w_head)
+    parser.add_argument("--track-context", action="store_true", help="the w head also reads the person's other frames (TrainConfig.track_context; a warm-up probe)")
     parser.add_argument("--w-loss", choices=W_LOSSES, default=defaults.w_loss)
     parser.add_argument("--init-track-from", default=None, metavar="CHECKPOINT", help="start TrackNet from this checkpoint's (TrainConfig.init_track_from)")
     parser.add_argument("--precision", choices=PRECISIONS, default=defaults.precision, help="the networks' arithmetic (TrainConfig.precision)")
