@@ -28,6 +28,10 @@ pub fn default_networks_dir() -> PathBuf {
 #[derive(Debug, Deserialize)]
 struct RawManifest {
     input_size: usize,
+    /// Absent from manifests written before TrackNet and ModelNet could differ.
+    track_input_size: Option<usize>,
+    /// Absent from manifests written before the browser had a TrackNet of its own.
+    web_track_net: Option<WebTrackNet>,
     blendshape_names: Vec<String>,
     uv_size: usize,
     normalisation: RawNormalisation,
@@ -54,12 +58,29 @@ struct RawMeanAlbedo {
     tensor: String,
 }
 
+/// The TrackNet the browser runs (`manifest.json`'s `web_track_net`): tract in wasm on the
+/// page's thread runs a 160 px TrackNet too slowly for live tracking, so the browser may
+/// keep a smaller one beside the native `track_net.onnx`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct WebTrackNet {
+    /// Its file name in the models directory.
+    pub file: String,
+    /// Side of its square input in pixels.
+    pub input_size: usize,
+}
+
 /// What the networks were trained with, read from `manifest.json`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Manifest {
     pub dir: PathBuf,
-    /// Side of the square network input in pixels.
+    /// Side of ModelNet's square input in pixels.
     pub input_size: usize,
+    /// Side of TrackNet's square input in pixels. Both networks read the same crop
+    /// rectangle, each sampled at its own size: TrackNet gains from more pixels on the face
+    /// at a cost per frame, ModelNet runs once per person (issue 31).
+    pub track_input_size: usize,
+    /// The browser's TrackNet, where the export named one.
+    pub web_track_net: Option<WebTrackNet>,
     pub normalisation: Normalisation,
     /// Field of view TrackNet's translation refers to (its z is for this focal length).
     pub reference_fov_deg: f32,
@@ -112,8 +133,28 @@ impl Manifest {
                 raw.uv_size
             )));
         }
-        if !(16..=1024).contains(&raw.input_size) {
-            return Err(bad(format!("input_size {} is implausible", raw.input_size)));
+        let track_input_size = raw.track_input_size.unwrap_or(raw.input_size);
+        let web_size = raw
+            .web_track_net
+            .as_ref()
+            .map_or(track_input_size, |w| w.input_size);
+        for (name, size) in [
+            ("input_size", raw.input_size),
+            ("track_input_size", track_input_size),
+            ("web_track_net.input_size", web_size),
+        ] {
+            if !(16..=1024).contains(&size) {
+                return Err(bad(format!("{name} {size} is implausible")));
+            }
+        }
+        if let Some(web) = &raw.web_track_net {
+            // A bare file name: the browser fetches it beside the manifest.
+            if web.file.is_empty() || web.file.contains(['/', '\\']) || web.file.starts_with('.') {
+                return Err(bad(format!(
+                    "web_track_net.file {:?} is not a file name",
+                    web.file
+                )));
+            }
         }
         let crop = raw.crop.ok_or_else(|| {
             bad("no `crop` framing (run `python -m likeness_train.preprocess --calibrate`)".into())
@@ -135,6 +176,8 @@ impl Manifest {
         Ok(Self {
             dir: dir.to_owned(),
             input_size: raw.input_size,
+            track_input_size,
+            web_track_net: raw.web_track_net,
             normalisation: Normalisation {
                 mean: raw.normalisation.mean,
                 std: raw.normalisation.std,
@@ -147,9 +190,19 @@ impl Manifest {
         })
     }
 
-    /// f_ref: the focal length in input pixels TrackNet's translation is expressed for.
+    /// The manifest as the browser's TrackNet reads it (its input size in place of the
+    /// native TrackNet's); the same manifest where the export named no web TrackNet.
+    pub fn for_web(&self) -> Manifest {
+        let mut manifest = self.clone();
+        if let Some(web) = &self.web_track_net {
+            manifest.track_input_size = web.input_size;
+        }
+        manifest
+    }
+
+    /// f_ref: the focal length in TrackNet's input pixels its translation is expressed for.
     pub fn reference_focal_px(&self) -> f32 {
-        focal_length_px(self.input_size as u32, self.reference_fov_deg)
+        focal_length_px(self.track_input_size as u32, self.reference_fov_deg)
     }
 
     /// R_0^t, the trained mean albedo of equation (3) (a 512 x 512 RGB UV map).
@@ -237,7 +290,7 @@ impl TrackNetOutput {
     ) -> FaceParams {
         // The crop camera is the frame camera turned towards the crop centre; in input
         // pixels its focal length is f_frame * input / side, and TrackNet's z is for f_ref.
-        let focal_input = frame.focal_px * manifest.input_size as f32 / crop.width;
+        let focal_input = frame.focal_px * manifest.track_input_size as f32 / crop.width;
         let mut t = self.translation_ref;
         t.z *= focal_input / manifest.reference_focal_px();
         let in_crop = HeadPose {
@@ -293,7 +346,7 @@ impl TrackNet {
     /// Runs a batch [B, 3, S, S]. An image whose outputs are not finite is an `Err` in its
     /// slot (the rest of the batch is still usable).
     pub fn run(&mut self, images: &Tensor) -> Result<Vec<Result<TrackNetOutput>>> {
-        let s = self.manifest.input_size;
+        let s = self.manifest.track_input_size;
         if images.shape.len() != 4 || images.shape[1..] != [3, s, s] {
             return Err(TrackingError::InvalidInput(format!(
                 "TrackNet takes [B, 3, {s}, {s}], got {:?}",

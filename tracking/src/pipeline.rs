@@ -121,7 +121,7 @@ pub struct StageTimes {
 #[derive(Clone, Debug)]
 pub struct FrameOutput {
     pub record: FrameRecord,
-    /// The network input (kept for personalization).
+    /// ModelNet's input for this frame (`Manifest::input_size`), kept for personalization.
     pub input: Option<Tensor>,
     pub crop: Option<Rect>,
     /// TrackNet's parameters in the frame camera, before refinement and smoothing.
@@ -779,10 +779,18 @@ impl Tracker {
             }
             _ => None,
         };
-        // The crop, as in training.
+        // The crop, as in training, at TrackNet's size and (kept for personalization) at
+        // ModelNet's: both sampled from the frame with the training code's box prefilter,
+        // so ModelNet sees what it would have seen beside a TrackNet of its own size.
         let t = Instant::now();
-        let s = self.manifest.input_size;
+        let s = self.manifest.track_input_size;
         let input = sample_rect(image, crop, s, s, self.manifest.normalisation)?;
+        let m = self.manifest.input_size;
+        let model_input = if m == s {
+            None
+        } else {
+            Some(sample_rect(image, crop, m, m, self.manifest.normalisation)?)
+        };
         times.crop_ms = ms(t);
         // TrackNet.
         let t = Instant::now();
@@ -808,7 +816,7 @@ impl Tracker {
         )?;
         Ok(FrameOutput {
             record,
-            input: Some(input),
+            input: Some(model_input.unwrap_or(input)),
             crop: Some(crop),
             tracknet: Some(tracknet),
             refined: Some(refined),

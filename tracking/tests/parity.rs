@@ -13,8 +13,9 @@ use tracking::personalize::stack;
 use tracking::preprocess::{Rect, sample_rect};
 use tracking::source::read_image;
 
-/// One fixture frame: the image, its landmarks, the training code's crop and input.
-type FixtureFrame = (image::RgbImage, Vec<Vec2>, [f32; 4], Vec<f32>);
+/// One fixture frame: the image, its landmarks, the training code's crop and its inputs
+/// for TrackNet and for ModelNet (each at its network's size).
+type FixtureFrame = (image::RgbImage, Vec<Vec2>, [f32; 4], Vec<f32>, Vec<f32>);
 
 struct Fixture {
     frames: Vec<FixtureFrame>,
@@ -42,7 +43,14 @@ fn load_fixture() -> Fixture {
             let lm = lm.chunks_exact(2).map(|p| Vec2::new(p[0], p[1])).collect();
             let (_, crop) = tensor(&st, &format!("crop_{k}"));
             let (_, input) = tensor(&st, &format!("input_{k}"));
-            (image, lm, [crop[0], crop[1], crop[2], crop[3]], input)
+            let (_, model_input) = tensor(&st, &format!("model_input_{k}"));
+            (
+                image,
+                lm,
+                [crop[0], crop[1], crop[2], crop[3]],
+                input,
+                model_input,
+            )
         })
         .collect();
     Fixture { frames, bytes }
@@ -52,8 +60,7 @@ fn load_fixture() -> Fixture {
 fn crop_and_input_tensor_match_the_training_code() {
     let manifest = Manifest::load(&default_networks_dir()).expect("manifest");
     let fx = load_fixture();
-    let s = manifest.input_size;
-    for (k, (image, landmarks, crop, input)) in fx.frames.iter().enumerate() {
+    for (k, (image, landmarks, crop, input, model_input)) in fx.frames.iter().enumerate() {
         let rect = manifest.crop.crop_for_landmarks(landmarks).expect("crop");
         let got = rect.to_array();
         for (a, b) in got.iter().zip(crop) {
@@ -68,10 +75,18 @@ fn crop_and_input_tensor_match_the_training_code() {
             width: crop[2],
             height: crop[3],
         };
-        let tensor =
-            sample_rect(image, fixture_rect, s, s, manifest.normalisation).expect("sample");
-        let d = max_abs_diff(&tensor.data, input);
-        assert!(d < 1e-4, "frame {k}: input tensor differs by {d}");
+        for (network, s, want) in [
+            ("TrackNet", manifest.track_input_size, input),
+            ("ModelNet", manifest.input_size, model_input),
+        ] {
+            let tensor =
+                sample_rect(image, fixture_rect, s, s, manifest.normalisation).expect("sample");
+            let d = max_abs_diff(&tensor.data, want);
+            assert!(
+                d < 1e-4,
+                "frame {k}: {network}'s input tensor differs by {d}"
+            );
+        }
     }
 }
 
@@ -80,8 +95,8 @@ fn track_outputs_match(kind: BackendKind) {
     let fx = load_fixture();
     let st = safetensors::SafeTensors::deserialize(&fx.bytes).expect("safetensors");
     let mut net = TrackNet::load(&manifest, kind, 2).expect("TrackNet");
-    let s = manifest.input_size;
-    for (k, (_, _, _, input)) in fx.frames.iter().enumerate() {
+    let s = manifest.track_input_size;
+    for (k, (_, _, _, input, _)) in fx.frames.iter().enumerate() {
         let t = tracking::Tensor::new(vec![1, 3, s, s], input.clone()).expect("tensor");
         let out = net.run(&t).expect("run").remove(0).expect("finite");
         for (name, got) in [
@@ -97,10 +112,11 @@ fn track_outputs_match(kind: BackendKind) {
     }
     // ModelNet on all the fixture's inputs.
     let mut model = ModelNet::load(&manifest, kind, 2).expect("ModelNet");
+    let m = manifest.input_size;
     let inputs: Vec<tracking::Tensor> = fx
         .frames
         .iter()
-        .map(|f| tracking::Tensor::new(vec![1, 3, s, s], f.3.clone()).expect("tensor"))
+        .map(|f| tracking::Tensor::new(vec![1, 3, m, m], f.4.clone()).expect("tensor"))
         .collect();
     let refs: Vec<&tracking::Tensor> = inputs.iter().collect();
     let corrections = model

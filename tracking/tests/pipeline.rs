@@ -185,7 +185,7 @@ impl InferenceBackend for NanBackend {
 fn nan_network_outputs_are_reported_not_propagated() {
     let manifest = Manifest::load(&default_networks_dir()).expect("manifest");
     let mut net = TrackNet::from_backend(Box::new(NanBackend), &manifest);
-    let s = manifest.input_size;
+    let s = manifest.track_input_size;
     let out = net.run(&Tensor::zeros(vec![2, 3, s, s])).expect("run");
     assert_eq!(out.len(), 2);
     for o in out {
@@ -692,4 +692,59 @@ fn the_mediapipe_locator_refines_on_all_468_points() {
         "the fit did not approach the points: {fit_before} -> {fit_after} px"
     );
     assert!(after < 1.15 * before, "TrackNet {before}, refined {after}");
+}
+
+#[test]
+fn the_manifest_gives_each_network_its_input_size() {
+    // A manifest from before TrackNet and ModelNet could differ has `input_size` alone,
+    // and it is both networks' size; `track_input_size` is TrackNet's (160 px beside a
+    // 128 px ModelNet); an implausible size is refused by name.
+    let dir = default_networks_dir();
+    let text = std::fs::read_to_string(dir.join("manifest.json")).expect("manifest.json");
+    let mut json: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+    let object = json.as_object_mut().expect("an object");
+    object.remove("track_input_size");
+    let web = object.remove("web_track_net");
+    object.insert("input_size".into(), 128.into());
+    let old = Manifest::from_json(&dir, &json.to_string()).expect("an older manifest");
+    assert_eq!((old.input_size, old.track_input_size), (128, 128));
+    assert_eq!(
+        old.for_web(),
+        old,
+        "no web TrackNet: the browser reads what native does"
+    );
+    json["track_input_size"] = 160.into();
+    let both = Manifest::from_json(&dir, &json.to_string()).expect("two sizes");
+    assert_eq!((both.input_size, both.track_input_size), (128, 160));
+    // TrackNet's translation refers to its own input's focal length.
+    let ratio = both.reference_focal_px() / old.reference_focal_px();
+    assert!((ratio - 1.25).abs() < 1e-5, "{ratio}");
+    // The browser's TrackNet: its own size for the browser, nothing changed natively.
+    json["web_track_net"] = serde_json::json!({"file": "track_net_web.onnx", "input_size": 128});
+    let with_web = Manifest::from_json(&dir, &json.to_string()).expect("a web TrackNet");
+    assert_eq!(with_web.track_input_size, 160);
+    assert_eq!(with_web.for_web().track_input_size, 128);
+    assert_eq!(with_web.for_web().input_size, 128);
+    for file in ["../track_net.onnx", "", "models/a.onnx"] {
+        json["web_track_net"]["file"] = file.into();
+        let e = Manifest::from_json(&dir, &json.to_string())
+            .expect_err("not a file name")
+            .to_string();
+        assert!(e.contains("is not a file name"), "{e}");
+    }
+    // The shipped manifest names one (the export always writes it).
+    assert!(web.is_some(), "the shipped manifest has no web_track_net");
+    json["web_track_net"] = web.expect("checked");
+    json["track_input_size"] = 4096.into();
+    let e = Manifest::from_json(&dir, &json.to_string())
+        .expect_err("implausible")
+        .to_string();
+    assert!(e.contains("track_input_size 4096"), "{e}");
+    // TrackNet refuses a crop of ModelNet's size when its own differs.
+    let mut net = TrackNet::from_backend(Box::new(NanBackend), &both);
+    let e = net
+        .run(&Tensor::zeros(vec![1, 3, 128, 128]))
+        .expect_err("wrong size")
+        .to_string();
+    assert!(e.contains("[B, 3, 160, 160]"), "{e}");
 }

@@ -53,6 +53,16 @@ def _zero_corrections(c: Corrections) -> Corrections:
     return Corrections(*(torch.zeros_like(t) for t in (c.dS0, c.dS, c.dR0, c.dR)))
 
 
+def model_net_input(images: torch.Tensor, model_net) -> torch.Tensor:
+    """TrackNet's normalised crops [N, 3, S, S] as ModelNet reads them: resized (with
+    antialiasing) where ModelNet reads another size (a 160 px TrackNet beside a 128 px
+    ModelNet), as the Rust pipeline samples the same crop rectangle at each network's size."""
+    size = getattr(model_net, "input_size", None) or images.shape[-1]
+    if images.shape[-1] == size:
+        return images
+    return torch.nn.functional.interpolate(images, size=(size, size), mode="bilinear", align_corners=False, antialias=True)
+
+
 def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int = HELD_OUT_SEED, model: FaceModel | None = None, log=None) -> dict:
     cfg_dict = nets.config
     if seed == cfg_dict.get("seed"):
@@ -75,7 +85,7 @@ def evaluate(nets: TrainedNetworks, people: int = 40, frames: int = 4, seed: int
         with torch.no_grad():
             x = normalise(batch.images)
             params = nets.track(x)
-            c = ablate(nets.model(x.view(1, frames, 3, size, size)), train_cfg)
+            c = ablate(nets.model(model_net_input(x, nets.model).unsqueeze(0)), train_cfg)
             true_albedo = region.albedo(batch.weights, batch.dR0.expand(frames, -1, -1, -1), batch.dR.expand(frames, -1, -1, -1, -1))
             true_deltas = region.blendshapes(batch.dS)
             images = batch.images.permute(0, 2, 3, 1)

@@ -41,7 +41,12 @@ IMAGE_STD = (0.5, 0.5, 0.5)
 
 @dataclass
 class Manifest:
+    # ModelNet's square input in pixels (and, for manifests written before
+    # `track_input_size`, TrackNet's too).
     input_size: int
+    # TrackNet's square input in pixels: both networks read the same crop rectangle,
+    # each sampled at its own size (a 160 px TrackNet beside a 128 px ModelNet, issue 31).
+    track_input_size: int
     track_width: float
     model_width: float
     blendshape_names: list[str]
@@ -54,6 +59,8 @@ class Manifest:
         }
     )
     camera: dict = field(default_factory=dict)
+    # The TrackNet the browser runs (`web_track_net`): its file and input size.
+    web_track_net: dict = field(default_factory=dict)
     # Where the crop goes around the landmarks (preprocess.py; measured on the training
     # distribution, so it depends on the synthetic camera, not on the checkpoint).
     crop: dict = field(default_factory=dict)
@@ -141,9 +148,11 @@ def git_commit() -> str:
         return "unknown"
 
 
-def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, input_size: int, out_dir: Path) -> tuple[Path, Path]:
-    """Writes track_net.onnx and, unless `model` is None (ModelNet kept as it is),
-    model_net.onnx; returns both paths."""
+def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, input_size: int, out_dir: Path, model_input_size: int | None = None) -> tuple[Path, Path]:
+    """Writes track_net.onnx (for `input_size` px crops) and, unless `model` is None
+    (ModelNet kept as it is), model_net.onnx (for `model_input_size` px, default the same);
+    returns both paths."""
+    model_input_size = model_input_size or input_size
     out_dir.mkdir(parents=True, exist_ok=True)
     track_path, model_path = out_dir / "track_net.onnx", out_dir / "model_net.onnx"
     track.eval()
@@ -167,7 +176,7 @@ def export_onnx(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, in
             return track_path, model_path
         torch.onnx.export(
             _ModelWrapper(model),
-            (torch.zeros(4, 3, input_size, input_size),),
+            (torch.zeros(4, 3, model_input_size, model_input_size),),
             str(model_path),
             input_names=["images"],
             output_names=["dS0", "dS", "dR0", "dR"],
@@ -257,33 +266,36 @@ def to_fp16_storage(path: Path, input_size: int, batch: int) -> dict[str, float]
 FP16_W_TOLERANCE = 2e-3
 
 
-def parity(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, track_path: Path, model_path: Path, input_size: int, seed: int = 0) -> dict:
+def parity(track: TrackNet | CalibratedTrackNet, model: ModelNet | None, track_path: Path, model_path: Path, input_size: int, seed: int = 0, model_input_size: int | None = None) -> dict:
     """Max abs difference between PyTorch and ONNX Runtime on random inputs (TrackNet only
-    when `model` is None)."""
+    when `model` is None; ModelNet's at `model_input_size`, default TrackNet's)."""
     import onnxruntime as ort
 
     g = torch.Generator().manual_seed(seed)
     images = torch.rand(3, 3, input_size, input_size, generator=g) * 2 - 1
+    model_images = images if not model_input_size or model_input_size == input_size else torch.rand(3, 3, model_input_size, model_input_size, generator=g) * 2 - 1
     result = {}
     with torch.no_grad():
         ref_track = [t.numpy() for t in _TrackWrapper(track.eval())(images)]
-        ref_model = None if model is None else [t.numpy() for t in _ModelWrapper(model.eval())(images)]
-    for name, path, ref in (("track_net", track_path, ref_track), ("model_net", model_path, ref_model)):
+        ref_model = None if model is None else [t.numpy() for t in _ModelWrapper(model.eval())(model_images)]
+    for name, path, ref, x in (("track_net", track_path, ref_track, images), ("model_net", model_path, ref_model, model_images)):
         if ref is None:
             continue
         session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-        got = session.run(None, {"images": images.numpy()})
+        got = session.run(None, {"images": x.numpy()})
         result[name] = float(max(np.abs(a - b).max() for a, b in zip(got, ref)))
     return result
 
 
-def latency(track_path: Path, model_path: Path, input_size: int, frames: int = 4, runs: int = 30) -> dict:
+def latency(track_path: Path, model_path: Path, input_size: int, frames: int = 4, runs: int = 30, model_input_size: int | None = None) -> dict:
     """Median ONNX Runtime latency in ms at batch 1 (TrackNet: one image; ModelNet: one
-    person's N frames), with 1 and 2 intra-op threads."""
+    person's N frames, at `model_input_size`, default TrackNet's), with 1 and 2 intra-op
+    threads."""
     import onnxruntime as ort
 
     result: dict = {}
-    inputs = {"track_net": np.random.default_rng(0).random((1, 3, input_size, input_size), dtype=np.float32), "model_net": np.random.default_rng(1).random((frames, 3, input_size, input_size), dtype=np.float32)}
+    m = model_input_size or input_size
+    inputs = {"track_net": np.random.default_rng(0).random((1, 3, input_size, input_size), dtype=np.float32), "model_net": np.random.default_rng(1).random((frames, 3, m, m), dtype=np.float32)}
     for name, path in (("track_net", track_path), ("model_net", model_path)):
         for threads in (1, 2):
             options = ort.SessionOptions()
@@ -313,10 +325,13 @@ def save_mean_albedo(mean_albedo: torch.Tensor, out_dir: Path) -> Path:
     return path
 
 
-def kept_model_net(source: Path, out: Path, input_size: int) -> dict:
+def kept_model_net(source: Path, out: Path) -> dict:
     """`--model-net-from SOURCE`: SOURCE's model_net.onnx and mean_albedo.safetensors go to
     `out` unchanged (copied unless SOURCE is `out`); returns SOURCE's manifest, which says
-    how they were trained. Refuses a directory that is not an export for this input size."""
+    how they were trained and which crops its ModelNet reads (`input_size`; TrackNet may
+    read another size). Refuses a directory that is not an export of a ModelNet size."""
+    from .networks import MODEL_NET_SIZES
+
     import shutil
 
     manifest_path = source / "manifest.json"
@@ -328,13 +343,58 @@ def kept_model_net(source: Path, out: Path, input_size: int) -> dict:
         old = json.loads(manifest_path.read_text())
     except json.JSONDecodeError as e:
         raise SystemExit(f"--model-net-from {source}: manifest.json is not JSON ({e})") from e
-    if old.get("input_size") != input_size:
-        raise SystemExit(f"--model-net-from {source}: its ModelNet reads {old.get('input_size')} px images, the checkpoint's TrackNet {input_size} px")
+    if old.get("input_size") not in MODEL_NET_SIZES:
+        raise SystemExit(f"--model-net-from {source}: its ModelNet reads {old.get('input_size')} px images; ModelNet reads {' or '.join(map(str, MODEL_NET_SIZES))} px")
     out.mkdir(parents=True, exist_ok=True)
     if source.resolve() != out.resolve():
         for name in names:
             shutil.copyfile(source / name, out / name)
     return old
+
+
+# The TrackNet file the browser fetches (web/src/lib.rs), beside track_net.onnx.
+WEB_TRACK_NET = "track_net_web.onnx"
+
+
+def read_networks(path: Path, flag: str):
+    """`load_networks` for a command-line argument: a missing or unreadable checkpoint is
+    refused by the flag's name before anything is written."""
+    import pickle
+
+    if not path.is_file():
+        raise SystemExit(f"{flag} {path}: no such checkpoint")
+    try:
+        return load_networks(path)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, KeyError, TypeError, ValueError) as e:
+        raise SystemExit(f"{flag} {path}: not a training checkpoint ({e})") from e
+
+
+def web_track_net(checkpoint: Path | None, nets, track_path: Path, track_size: int, out: Path, fp32: bool = False) -> dict:
+    """Writes `WEB_TRACK_NET` and returns the manifest's `web_track_net` entry.
+
+    Why a TrackNet of its own: the browser runs TrackNet with tract in wasm on the page's
+    thread, where a 160 px TrackNet took ~26-31 ms a frame against ~15-17 for 128 px and
+    held tracking below 30 fps (web/tests/e2e.mjs, 2026-12-08); the browser keeps a 128 px
+    one there while native tracking gets the larger. Without `checkpoint` it is a copy of
+    track_net.onnx."""
+    import shutil
+    import tempfile
+
+    target = out / WEB_TRACK_NET
+    if checkpoint is None:
+        shutil.copyfile(track_path, target)
+        return {"file": WEB_TRACK_NET, "input_size": track_size, "same_as": track_path.name}
+    size = nets.config["input_size"]
+    with tempfile.TemporaryDirectory(dir=out) as tmp:
+        path, _ = export_onnx(nets.track, None, size, Path(tmp))
+        diffs = parity(nets.track, None, path, path, size)
+        rounding = None if fp32 else to_fp16_storage(path, size, batch=3)
+        shutil.move(str(path), target)
+    return {
+        "file": WEB_TRACK_NET, "input_size": size, "checkpoint": checkpoint.name, "training_commit": nets.checkpoint.get("commit", ""),
+        "w_calibration": calibration_summary(nets.checkpoint), "parity_max_abs_diff": diffs["track_net"], "fp16_storage_max_abs_diff": rounding,
+        "why": "tract in the browser's wasm runs the 160 px TrackNet below 30 fps; the browser keeps this one",
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -348,19 +408,36 @@ def main(argv: list[str] | None = None) -> None:
         help="export TrackNet only and keep DIR's exported ModelNet and R_0^t (DIR may be --out): a warm-up checkpoint's are untrained",
     )
     parser.add_argument(
+        "--web-track-net", type=Path, default=None, metavar="CKPT",
+        help=f"the checkpoint whose TrackNet the browser runs ({WEB_TRACK_NET}); default: the same TrackNet as track_net.onnx",
+    )
+    parser.add_argument(
         "--fp32-weights", action="store_true",
         help="store the weights as float32 (default: float16 storage, float32 arithmetic; half the download)",
     )
     args = parser.parse_args(argv)
-    nets = load_networks(args.checkpoint)
+    nets = read_networks(args.checkpoint, "--checkpoint")
+    # The browser's TrackNet is checked before anything is written.
+    web_nets = read_networks(args.web_track_net, "--web-track-net") if args.web_track_net else None
+    if web_nets is not None and not 32 <= web_nets.config["input_size"] <= nets.config["input_size"]:
+        raise SystemExit(
+            f"--web-track-net {args.web_track_net}: its TrackNet reads {web_nets.config['input_size']} px; "
+            f"the browser's must read at most TrackNet's {nets.config['input_size']} px"
+        )
     cfg, ckpt, track, model = nets.config, nets.checkpoint, nets.track, nets.model
-    kept_from = kept_model_net(args.model_net_from, args.out, cfg["input_size"]) if args.model_net_from else None
+    kept_from = kept_model_net(args.model_net_from, args.out) if args.model_net_from else None
+    track_size = cfg["input_size"]
     if kept_from is not None:
         model = None
+        model_size = kept_from["input_size"]
     elif nets.mean_albedo is None:
         raise SystemExit(f"{args.checkpoint} has no trained mean albedo R_0^t; it is not a training checkpoint")
-    track_path, model_path = export_onnx(track, model, cfg["input_size"], args.out)
-    diffs = parity(track, model, track_path, model_path, cfg["input_size"])
+    elif track_size != model.input_size:
+        raise SystemExit(f"{args.checkpoint}: its TrackNet reads {track_size} px and its ModelNet was never trained; export it with --model-net-from DIR")
+    else:
+        model_size = track_size
+    track_path, model_path = export_onnx(track, model, track_size, args.out, model_input_size=model_size)
+    diffs = parity(track, model, track_path, model_path, track_size, model_input_size=model_size)
     if kept_from is not None:
         albedo_path = args.out / "mean_albedo.safetensors"
         diffs["model_net"] = kept_from.get("parity_max_abs_diff", {}).get("model_net")
@@ -368,17 +445,20 @@ def main(argv: list[str] | None = None) -> None:
         albedo_path = save_mean_albedo(nets.mean_albedo, args.out)
     rounding: dict = {}
     if not args.fp32_weights:
-        rounding["track_net"] = to_fp16_storage(track_path, cfg["input_size"], batch=3)
+        rounding["track_net"] = to_fp16_storage(track_path, track_size, batch=3)
         if kept_from is None:
-            rounding["model_net"] = to_fp16_storage(model_path, cfg["input_size"], batch=cfg.get("frames", 4))
+            rounding["model_net"] = to_fp16_storage(model_path, model_size, batch=cfg.get("frames", 4))
         else:
             # A kept ModelNet already stored as float16 keeps its record; a float32 one is
             # stored as float16 now (half its download), measured against itself.
             rounding["model_net"] = (kept_from.get("fp16_storage_max_abs_diff") or {}).get("model_net")
             if rounding["model_net"] is None:
-                rounding["model_net"] = to_fp16_storage(model_path, cfg["input_size"], batch=cfg.get("frames", 4))
-    timings = latency(track_path, model_path, cfg["input_size"], frames=cfg.get("frames", 4))
-    crop = crop_framing([args.out / "manifest.json", REPOSITORY_MANIFEST], cfg["input_size"], args.recalibrate_crop)
+                rounding["model_net"] = to_fp16_storage(model_path, model_size, batch=cfg.get("frames", 4))
+    web = web_track_net(args.web_track_net, web_nets, track_path, track_size, args.out, fp32=args.fp32_weights)
+    timings = latency(track_path, model_path, track_size, frames=cfg.get("frames", 4), model_input_size=model_size)
+    # The framing is the landmark box's ratio to the image, the same at any input size (128
+    # and 160 px agree to 1e-7), so one calibration serves both networks' crops.
+    crop = crop_framing([args.out / "manifest.json", REPOSITORY_MANIFEST], model_size, args.recalibrate_crop)
     training = {
         "step": ckpt.get("step"), "stage": ckpt.get("stage"), "elapsed_s": round(ckpt.get("elapsed_s", 0.0), 1),
         "config": {k: v for k, v in cfg.items() if k != "blendshape_names"}, "w_calibration": calibration_summary(ckpt),
@@ -391,11 +471,13 @@ def main(argv: list[str] | None = None) -> None:
             "model_width": kept_from.get("model_width"),
         }
     manifest = Manifest(
-        input_size=cfg["input_size"],
+        input_size=model_size,
+        track_input_size=track_size,
         track_width=cfg["track_width"],
         model_width=kept_from.get("model_width", cfg["model_width"]) if kept_from is not None else cfg["model_width"],
         blendshape_names=list(cfg["blendshape_names"]),
         camera=camera_assumptions(),
+        web_track_net=web,
         crop=crop,
         training_commit=ckpt.get("commit", git_commit()),
         training=training,
@@ -405,7 +487,7 @@ def main(argv: list[str] | None = None) -> None:
         metrics=json.loads(args.metrics.read_text())["metrics"] if args.metrics else ckpt.get("metrics", {}),
     )
     (args.out / "manifest.json").write_text(json.dumps(asdict(manifest), indent=2) + "\n")
-    for path in (track_path,) if kept_from is not None else (track_path, model_path, albedo_path):
+    for path in ((track_path,) if kept_from is not None else (track_path, model_path, albedo_path)) + (args.out / WEB_TRACK_NET,):
         print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     if kept_from is not None:
         print(f"kept ModelNet and R_0^t from {args.model_net_from} (training commit {training['model_net_from']['training_commit']})")

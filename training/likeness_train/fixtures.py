@@ -40,7 +40,7 @@ from .preprocess import CropFraming, crop_for_landmarks, sample_rect
 
 # Held out: training used seed 1, evaluation 1000, the framing calibration 0, the clips 9001.
 FIXTURE_SEED = 9002
-LAYOUT_VERSION = 1
+LAYOUT_VERSION = 2  # 2: ModelNet's own inputs (model_input_K), TrackNet's at track_input_size
 MODELS = Path(__file__).resolve().parents[2] / "assets" / "models"
 
 
@@ -150,7 +150,8 @@ def write_fixture(out: Path, seed: int = FIXTURE_SEED, models: Path = MODELS, mo
             raise FileNotFoundError(f"{models / name} is missing")
     manifest = json.loads((models / "manifest.json").read_text())
     framing = CropFraming.from_manifest(manifest)
-    size = int(manifest["input_size"])
+    size = int(manifest.get("track_input_size", manifest["input_size"]))  # TrackNet's
+    model_size = int(manifest["input_size"])  # ModelNet's
     mean, std = manifest["normalisation"]["mean"], manifest["normalisation"]["std"]
     model = model or FaceModel.load()
     out.mkdir(exist_ok=True)
@@ -168,8 +169,9 @@ def write_fixture(out: Path, seed: int = FIXTURE_SEED, models: Path = MODELS, mo
         rect = crop_for_landmarks(f["landmarks"], framing)
         x = sample_rect(image, rect, size, size, mean, std)
         w, euler, translation, gamma = track.run(None, {"images": x})
-        tensors.update({f"landmarks_{k}": f["landmarks"], f"crop_{k}": rect.to_array(), f"input_{k}": x, f"w_{k}": w[0], f"euler_{k}": euler[0], f"translation_{k}": translation[0], f"gamma_{k}": gamma[0]})
-        inputs.append(x[0])
+        model_x = x if model_size == size else sample_rect(image, rect, model_size, model_size, mean, std)
+        tensors.update({f"landmarks_{k}": f["landmarks"], f"crop_{k}": rect.to_array(), f"input_{k}": x, f"model_input_{k}": model_x, f"w_{k}": w[0], f"euler_{k}": euler[0], f"translation_{k}": translation[0], f"gamma_{k}": gamma[0]})
+        inputs.append(model_x[0])
         cam, spec = f["camera"], f["spec"]
         per_frame.append({
             "file": f"frames/{path.name}", "width": cam.width, "height": cam.height, "crop": [float(v) for v in rect.to_array()],
@@ -190,11 +192,12 @@ def write_fixture(out: Path, seed: int = FIXTURE_SEED, models: Path = MODELS, mo
         "canvas_sizes": [[p["width"], p["height"]] for p in per_frame],
         "per_frame": per_frame,
         "framing": {"centre_offset": list(framing.centre_offset), "scale": framing.scale},
-        "input_size": size,
+        "input_size": model_size,
+        "track_input_size": size,
         "normalisation": {"mean": mean, "std": std},
         "tensors": {
-            "per frame K": "landmarks_K [68,2], crop_K [4] (x, y, w, h), input_K [1,3,S,S], w_K [53], euler_K [3] (yaw, pitch, roll rad), translation_K [3] (cm, reference camera), gamma_K [27]: TrackNet at batch 1",
-            "ModelNet": "dS0 [1,3,128,128], dS [1,53,3,128,128], dR0 [1,3,128,128], dR [1,53,3,128,128] for the K inputs stacked in frame order",
+            "per frame K": "landmarks_K [68,2], crop_K [4] (x, y, w, h), input_K [1,3,S,S] (S = track_input_size), model_input_K [1,3,M,M] (M = input_size), w_K [53], euler_K [3] (yaw, pitch, roll rad), translation_K [3] (cm, reference camera), gamma_K [27]: TrackNet at batch 1",
+            "ModelNet": "dS0 [1,3,128,128], dS [1,53,3,128,128], dR0 [1,3,128,128], dR [1,53,3,128,128] for the K model_inputs stacked in frame order",
         },
         "models": {name: sha256(models / name) for name in ("track_net.onnx", "model_net.onnx", "manifest.json")},
         "onnxruntime": onnxruntime.__version__,

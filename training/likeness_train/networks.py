@@ -119,19 +119,24 @@ class Corrections:
     dR: torch.Tensor
 
 
+# ModelNet's input sizes and the encoder's grid at each (its decoders are built for these).
+MODEL_NET_SIZES = {224: 7, 128: 4}
+
+
 class ModelNet(nn.Module):
     """Personal corrections from N images of one person (feature averaging makes N free)."""
 
     def __init__(self, input_size: int = 128, width: float = 1.0, shape_scale: float = 1.0, albedo_scale: float = 1.0):
         super().__init__()
         self.encoder = ModelEncoder(width)
-        feature_size = {224: 7, 128: 4}.get(input_size)
+        feature_size = MODEL_NET_SIZES.get(input_size)
         if feature_size is None:
             raise ValueError(f"input_size must be 224 or 128, got {input_size}")
         self.shape_decoder = CorrectionDecoder(self.encoder.out_channels, feature_size, width)
         self.albedo_decoder = CorrectionDecoder(self.encoder.out_channels, feature_size, width)
         self.shape_scale = shape_scale
         self.albedo_scale = albedo_scale
+        self.input_size = input_size
 
     def forward(self, images: torch.Tensor) -> Corrections:
         """images: [P, N, 3, H, W] (P people, N images each) or [N, 3, H, W] (one person)."""
@@ -407,7 +412,7 @@ class ExportedModelNet:
     are untrained; shipping its TrackNet keeps the shipped ModelNet, whose training
     checkpoint may be gone (only its export is in git). Evaluating that pair needs this."""
 
-    def __init__(self, models_dir, input_size: int | None = None):
+    def __init__(self, models_dir):
         import json
         from pathlib import Path
 
@@ -428,16 +433,18 @@ class ExportedModelNet:
             raise ValueError(f"{models_dir}: cannot load the exported ModelNet ({e})") from e
         if "mean_albedo_face" not in tensors:
             raise ValueError(f"{albedo_path}: no mean_albedo_face tensor")
-        # The exporter's manifest says which crops this ModelNet reads; a checkpoint of
-        # another input size would only fail inside ONNX Runtime, person by person.
+        # The exporter's manifest says which crops this ModelNet reads (`input_size`; a
+        # TrackNet beside it may read another size, `track_input_size`); callers resize
+        # their crops to it, since ONNX Runtime would only fail person by person.
         manifest = models_dir / "manifest.json"
-        if input_size is not None and manifest.is_file():
+        self.input_size = 128
+        if manifest.is_file():
             try:
-                exported_size = json.loads(manifest.read_text()).get("input_size")
-            except json.JSONDecodeError as e:
-                raise ValueError(f"{manifest}: not JSON ({e})") from e
-            if exported_size != input_size:
-                raise ValueError(f"{models_dir}: its ModelNet reads {exported_size} px images, the checkpoint's TrackNet {input_size} px")
+                self.input_size = int(json.loads(manifest.read_text()).get("input_size", 128))
+            except (json.JSONDecodeError, TypeError, ValueError) as e:
+                raise ValueError(f"{manifest}: not a manifest with an integer input_size ({e})") from e
+        if self.input_size not in MODEL_NET_SIZES:
+            raise ValueError(f"{models_dir}: its ModelNet reads {self.input_size} px images; ModelNet reads {' or '.join(map(str, MODEL_NET_SIZES))} px")
         self.mean_albedo = tensors["mean_albedo_face"].float()
         self.directory = models_dir
 
@@ -484,7 +491,10 @@ def load_networks(path, model_net_from=None) -> TrainedNetworks:
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
     cfg = ckpt["config"]
     track = build_track_net(cfg)
-    model = ModelNet(input_size=cfg["input_size"], width=cfg["model_width"])
+    # A TrackNet of another input size (160 px) trained in the warm-up alone sits beside an
+    # untrained 128 px ModelNet (train.Trainer).
+    model_size = cfg["input_size"] if cfg["input_size"] in MODEL_NET_SIZES else 128
+    model = ModelNet(input_size=model_size, width=cfg["model_width"])
     track.load_state_dict(ckpt["track_net"])
     # A kept warm-up checkpoint (keep.py) has no ModelNet: it was never trained, and a
     # fresh one is what the warm-up had.
@@ -493,6 +503,6 @@ def load_networks(path, model_net_from=None) -> TrainedNetworks:
     if ckpt.get("w_calibration") is not None:
         track = CalibratedTrackNet(track, WCalibration(ckpt["w_calibration"]["coefficients"]))
     if model_net_from is not None:
-        exported = ExportedModelNet(model_net_from, input_size=cfg["input_size"])
+        exported = ExportedModelNet(model_net_from)
         return TrainedNetworks(cfg, track.eval(), exported, exported.mean_albedo, ckpt)
     return TrainedNetworks(cfg, track.eval(), model.eval(), ckpt.get("mean_albedo"), ckpt)

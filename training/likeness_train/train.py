@@ -40,8 +40,8 @@ from .data import Batch, SyntheticData, concat_batches, mirror_batch, mirror_cha
 from .dataset import CachedData, CacheUnion
 from .export import IMAGE_MEAN, IMAGE_STD, git_commit
 from .face import FaceModel
-from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, ModelNet, TrackNet, TrackParams, build_track_net, leave_one_out_context
-from .widen import widen_track, widths_match
+from .networks import TRACK_POOLS, TRACK_W_HEADS, Corrections, MODEL_NET_SIZES, ModelNet, TrackNet, TrackParams, build_track_net, leave_one_out_context
+from .widen import resize_track_input, widen_track, widths_match
 
 
 WARMUP_CHECKPOINT = "warmup.pt"  # the checkpoint at the end of stage 0, beside checkpoint.pt
@@ -225,7 +225,15 @@ class Trainer:
         # Set by `run` on the steps it logs: the step then measures each term's gradient at
         # TrackNet's trunk (`trunk_gradients`).
         self.measure_trunk = False
-        self.modelnet = ModelNet(input_size=config.input_size, width=config.model_width)
+        # ModelNet reads 128 or 224 px; a TrackNet for another input size (160 px, issue 31)
+        # is trained in the warm-up alone and runs beside a ModelNet trained at 128 px, so
+        # its run holds an untrained 128 px ModelNet that no stage trains.
+        if config.input_size not in MODEL_NET_SIZES and (config.stage1_steps > 0 or config.stage2_steps > 0):
+            raise ValueError(
+                f"input_size {config.input_size}: ModelNet reads {' or '.join(map(str, MODEL_NET_SIZES))} px, so stages 1 and 2 cannot run; "
+                "train this TrackNet in the warm-up alone (--stage1-steps 0 --stage2-steps 0)"
+            )
+        self.modelnet = ModelNet(input_size=config.input_size if config.input_size in MODEL_NET_SIZES else 128, width=config.model_width)
         if config.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {config.precision!r}")
         # NHWC is the layout oneDNN's convolutions run fastest in on CPU (~1.2x in fp32,
@@ -259,9 +267,26 @@ class Trainer:
                 continue  # a narrower TrackNet is widened below
             if key == "track_context" and not theirs and self.cfg.track_context:
                 continue  # a plain TrackNet: its context branch starts at zero, below
+            if key == "input_size" and isinstance(theirs, int) and theirs != self.cfg.input_size and not self.cfg.track_context:
+                continue  # resized below
             if theirs != getattr(self.cfg, key):
                 raise ValueError(f"--init-track-from {path}: its TrackNet has {key} = {theirs!r}, this run builds {getattr(self.cfg, key)!r}")
         theirs = state["config"]["track_width"]
+        if state["config"]["input_size"] != self.cfg.input_size:
+            # A TrackNet for another input size: its trunk and heads moved to this one's
+            # grid (widen.resize_track_input), then widened if it is also narrower.
+            if state["config"].get("track_context"):
+                raise ValueError(f"--init-track-from {path}: a context TrackNet is not resized to another input size")
+            small = build_track_net(state["config"])
+            small.load_state_dict(state["track_net"])
+            resized = build_track_net({**state["config"], "input_size": self.cfg.input_size})
+            resize_track_input(small, resized)
+            print(f"TrackNet resized from {state['config']['input_size']} px to {self.cfg.input_size} px input", file=sys.stderr, flush=True)
+            if theirs == self.cfg.track_width:
+                self.track.load_state_dict(resized.state_dict())
+            else:
+                widen_track(resized, self.track, seed=self.cfg.seed)
+            return
         if self.cfg.track_context and not state["config"].get("track_context"):
             if theirs != self.cfg.track_width:
                 raise ValueError(f"--init-track-from {path}: a context TrackNet starts from a plain one of the same width only")

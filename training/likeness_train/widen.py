@@ -110,15 +110,63 @@ def widen_track(narrow: TrackNet, wide: TrackNet, seed: int = 0, jitter: float =
         dst.weight.data.copy_(src.weight.detach()[:, index] * share[None, :])
         dst.bias.data.copy_(src.bias.detach())
 
-    linear_in(narrow.fc[0], wide.fc[0])
-    wide.head.load_state_dict(narrow.head.state_dict())
-    if narrow.w_head is not None:
-        linear_in(narrow.w_head[0], wide.w_head[0])
-        wide.w_head[2].load_state_dict(narrow.w_head[2].state_dict())
+    copy_heads(narrow, wide, linear_in)
+
+
+def copy_heads(src: TrackNet, dst: TrackNet, linear_in) -> None:
+    """The layers behind the trunk from `src` to `dst`: `linear_in` maps the weights of those
+    that read the trunk's features, the rest (and the pose and light priors) are copied."""
+    linear_in(src.fc[0], dst.fc[0])
+    dst.head.load_state_dict(src.head.state_dict())
+    if src.w_head is not None:
+        linear_in(src.w_head[0], dst.w_head[0])
+        dst.w_head[2].load_state_dict(src.w_head[2].state_dict())
     for name in ("translation_prior", "gamma_prior"):
-        getattr(wide, name).data.copy_(getattr(narrow, name))
+        getattr(dst, name).data.copy_(getattr(src, name))
 
 
 def widths_match(narrow_width: float, wide_width: float) -> bool:
     """Whether every layer of `wide_width` has at least the channels of `narrow_width`."""
     return all(_ch(c, wide_width) >= _ch(c, narrow_width) for c in (64, 128, 256, 512))
+
+
+def resize_track_input(small: TrackNet, large: TrackNet) -> None:
+    """Writes into `large` (the same TrackNet built for another input size) the weights of
+    `small`, so a TrackNet for more pixels starts from one trained on fewer (issue 31).
+
+    The convolutions do not depend on the input size and are copied. With a flattened grid
+    (`pool="flatten"`) the layers behind the trunk read one weight per (channel, cell): their
+    weights are resampled bilinearly from the old grid to the new and scaled by the ratio of
+    the cell counts, so a feature map that is uniform over the grid gives the same output.
+    The resized network computes a different function (its trunk sees the face larger); it
+    is a start for fine-tuning, not a finished network. Raises ValueError where the two
+    differ in anything but the input size."""
+    se, le = small.encoder, large.encoder
+    if type(se.pool) is not type(le.pool):
+        raise ValueError("the two TrackNets pool the trunk differently")
+    if (small.w_head is None) != (large.w_head is None) or small.context_net is not None or large.context_net is not None:
+        raise ValueError("the two TrackNets' heads differ (or hold a context branch, which is not resized)")
+    trunk = {k: v for k, v in small.state_dict().items() if k.startswith("encoder.")}
+    target = large.state_dict()
+    if trunk.keys() != {k for k in target if k.startswith("encoder.")}:
+        raise ValueError("the two trunks differ")
+    for key, value in trunk.items():
+        if target[key].shape != value.shape:
+            raise ValueError(f"trunk weight {key}: {list(value.shape)} cannot become {list(target[key].shape)}")
+    large.load_state_dict(trunk, strict=False)
+    channels = se.layers[-1].conv2.out_channels
+    old_cells, new_cells = se.out_features // channels, le.out_features // channels
+    old_grid, new_grid = round(old_cells**0.5), round(new_cells**0.5)
+
+    def linear_in(src: torch.nn.Linear, dst: torch.nn.Linear) -> None:
+        weight = src.weight.detach()
+        if old_cells != new_cells:
+            grid = weight.view(weight.shape[0], channels, old_grid, old_grid)
+            grid = torch.nn.functional.interpolate(grid, size=(new_grid, new_grid), mode="bilinear", align_corners=True)
+            weight = grid.reshape(weight.shape[0], -1) * (old_cells / new_cells)
+        if weight.shape != dst.weight.shape:
+            raise ValueError(f"linear layer {list(src.weight.shape)} cannot become {list(dst.weight.shape)}")
+        dst.weight.data.copy_(weight)
+        dst.bias.data.copy_(src.bias.detach())
+
+    copy_heads(small, large, linear_in)

@@ -89,12 +89,48 @@ def test_a_tracknet_only_export_keeps_the_exported_model_net_and_evaluates_with_
     assert result["model_net_from"] == str(out)
     with pytest.raises(SystemExit, match="not an exported models directory"):
         export_main(["--checkpoint", str(second), "--out", str(tmp_path / "x"), "--model-net-from", str(tmp_path / "first")])
-    manifest["input_size"] = 224
+    manifest["input_size"] = 96  # no ModelNet reads 96 px
     (out / "manifest.json").write_text(json.dumps(manifest))
-    with pytest.raises(SystemExit, match="reads 224 px images"):
+    with pytest.raises(SystemExit, match="reads 96 px images"):
         evaluate_main(["--checkpoint", str(second), "--out", str(result_path), "--model-net-from", str(out)])
     with pytest.raises(SystemExit, match="no such file"):
         evaluate_main(["--checkpoint", str(second), "--out", str(result_path), "--model-net-from", str(tmp_path / "first")])
+
+    # A TrackNet for 160 px crops (issue 31) ships beside the kept 128 px ModelNet: the
+    # manifest gives each network its size, the files read those sizes, and the evaluation
+    # feeds ModelNet the crops resized to its own.
+    config = TrainConfig(people_per_batch=1, frames=2, landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0, track_width=0.25, model_width=0.25, input_size=160)
+    large = Trainer(config, tmp_path / "large")
+    large.save()
+    with pytest.raises(SystemExit, match="reads 160 px and its ModelNet was never trained"):
+        export_main(["--checkpoint", str(large.checkpoint_path), "--out", str(tmp_path / "y"), "--fp32-weights"])
+    mixed = tmp_path / "mixed"
+    export_main(["--checkpoint", str(large.checkpoint_path), "--out", str(mixed), "--model-net-from", str(shipped), "--fp32-weights"])
+    sizes = json.loads((mixed / "manifest.json").read_text())
+    assert (sizes["input_size"], sizes["track_input_size"]) == (128, 160)
+    assert sizes["crop"] == first_manifest["crop"]
+    import onnx
+
+    def input_side(path):
+        return onnx.load(str(path)).graph.input[0].type.tensor_type.shape.dim[3].dim_value
+
+    assert (input_side(mixed / "track_net.onnx"), input_side(mixed / "model_net.onnx")) == (160, 128)
+    # Without --web-track-net the browser's TrackNet is the same file; with it, the named
+    # checkpoint's (a 128 px one beside the 160 px), and never a larger one than native.
+    assert (mixed / "track_net_web.onnx").read_bytes() == (mixed / "track_net.onnx").read_bytes()
+    assert sizes["web_track_net"] == {"file": "track_net_web.onnx", "input_size": 160, "same_as": "track_net.onnx"}
+    export_main(["--checkpoint", str(large.checkpoint_path), "--out", str(mixed), "--model-net-from", str(mixed), "--fp32-weights", "--web-track-net", str(second)])
+    web = json.loads((mixed / "manifest.json").read_text())["web_track_net"]
+    assert (web["file"], web["input_size"], web["checkpoint"]) == ("track_net_web.onnx", 128, second.name)
+    assert web["parity_max_abs_diff"] < 1e-4 and input_side(mixed / "track_net_web.onnx") == 128
+    # Refused before anything is written: a larger browser TrackNet, a missing or junk file.
+    for bad, message in ((large.checkpoint_path, "at most TrackNet's 128 px"), (tmp_path / "none.pt", "no such checkpoint"), (tmp_path / "junk.pt", "not a training checkpoint")):
+        (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+        with pytest.raises(SystemExit, match=message):
+            export_main(["--checkpoint", str(second), "--out", str(tmp_path / "z"), "--fp32-weights", "--web-track-net", str(bad)])
+        assert not (tmp_path / "z").exists()
+    evaluate_main(["--checkpoint", str(large.checkpoint_path), "--out", str(result_path), "--people", "1", "--frames", "2", "--threads", "1", "--model-net-from", str(mixed)])
+    assert json.loads(result_path.read_text())["evaluation"]["image_size"] == 160
 
 
 def test_float16_storage_halves_the_file_rounds_each_weight_once_and_keeps_the_outputs(tmp_path, monkeypatch):

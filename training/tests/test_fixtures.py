@@ -33,8 +33,9 @@ def test_fixture_layout_and_shapes(fixture_dir, tensors):
     manifest = json.loads((FX.MODELS / "manifest.json").read_text())
     assert info["framing"] == {"centre_offset": manifest["crop"]["centre_offset"], "scale": manifest["crop"]["scale"]}
     assert info["models"]["track_net.onnx"] == FX.sha256(FX.MODELS / "track_net.onnx")
-    s = info["input_size"]
-    shapes = {"landmarks": (68, 2), "crop": (4,), "input": (1, 3, s, s), "w": (53,), "euler": (3,), "translation": (3,), "gamma": (27,)}
+    s, m = info["track_input_size"], info["input_size"]  # TrackNet's, ModelNet's
+    assert (s, m) == (manifest.get("track_input_size", manifest["input_size"]), manifest["input_size"])
+    shapes = {"landmarks": (68, 2), "crop": (4,), "input": (1, 3, s, s), "model_input": (1, 3, m, m), "w": (53,), "euler": (3,), "translation": (3,), "gamma": (27,)}
     for i in range(k):
         for name, shape in shapes.items():
             t = tensors[f"{name}_{i}"]
@@ -55,9 +56,11 @@ def test_fixture_inputs_are_the_preprocessed_frames(fixture_dir, tensors):
         assert image.shape == (h, w, 3) and image.dtype == np.uint8
         rect = Rect(*tensors[f"crop_{i}"])
         assert rect == crop_for_landmarks(tensors[f"landmarks_{i}"], framing)
-        x = sample_rect(image, rect, info["input_size"], info["input_size"], norm["mean"], norm["std"])
+        s, m = info["track_input_size"], info["input_size"]
+        x = sample_rect(image, rect, s, s, norm["mean"], norm["std"])
         assert np.array_equal(x, tensors[f"input_{i}"]), i  # bit for bit
-        filters.append(rect.box_filter(info["input_size"], info["input_size"])[0])
+        assert np.array_equal(sample_rect(image, rect, m, m, norm["mean"], norm["std"]), tensors[f"model_input_{i}"]), i
+        filters.append(rect.box_filter(s, s)[0])
         inside.append(rect.inside(w, h))
         # The true landmarks are where the frame spec put the face.
         spec = FX.FRAMES[i]

@@ -6,13 +6,14 @@ values, so a broken or swapped export fails and noise does not)."""
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 
 from likeness_train.data import SyntheticData
-from likeness_train.evaluate import HELD_OUT_SEED, METRIC_KEYS
+from likeness_train.evaluate import HELD_OUT_SEED, METRIC_KEYS, model_net_input
 from likeness_train.export import IMAGE_MEAN, IMAGE_STD
 
 MODELS = Path(__file__).resolve().parents[2] / "assets" / "models"
@@ -39,6 +40,9 @@ def test_manifest_describes_the_models(manifest, face_model):
     # The manifest's metrics are the committed evaluation of the same run.
     results = json.loads(RESULTS.read_text())
     assert results["step"] == manifest["training"]["step"]
+    # ModelNet reads `input_size`, TrackNet `track_input_size` (160 px since 2026-12-08), and
+    # the evaluation rendered the frames TrackNet reads.
+    assert results["evaluation"]["image_size"] == manifest.get("track_input_size", manifest["input_size"])
     for key in METRIC_KEYS:
         assert manifest["metrics"][key] == pytest.approx(results["metrics"][key], rel=1e-9), key
     size = sum(p.stat().st_size for p in MODELS.iterdir())
@@ -52,7 +56,9 @@ def test_onnx_models_track_and_personalize_held_out_people(manifest, face_model)
     options.intra_op_num_threads = 1
     track = ort.InferenceSession(str(MODELS / "track_net.onnx"), options, providers=["CPUExecutionProvider"])
     model = ort.InferenceSession(str(MODELS / "model_net.onnx"), options, providers=["CPUExecutionProvider"])
-    size, frames, people = manifest["input_size"], 4, 3
+    # TrackNet's crops (160 px) and ModelNet's (128 px) differ: ModelNet reads the same
+    # renders resized to its own size, as evaluate.model_net_input does.
+    size, model_size, frames, people = manifest.get("track_input_size", manifest["input_size"]), manifest["input_size"], 4, 3
     data = SyntheticData(face_model, face_model.restricted(), seed=HELD_OUT_SEED, image_size=size, frames=frames)
     mean = np.array(manifest["normalisation"]["mean"], np.float32).reshape(1, 3, 1, 1)
     std = np.array(manifest["normalisation"]["std"], np.float32).reshape(1, 3, 1, 1)
@@ -69,7 +75,9 @@ def test_onnx_models_track_and_personalize_held_out_people(manifest, face_model)
         assert (gamma[:, band0] > 0).all()
         gamma_err.append(np.abs(gamma - batch.gamma.numpy())[:, band0].mean())
         gamma_prior_err.append(np.abs(batch.gamma.numpy() - _ambient_prior())[:, band0].mean())
-        dS0, dS, dR0, dR = model.run(None, {"images": x})
+        model_x = model_net_input(torch.from_numpy(x), SimpleNamespace(input_size=model_size)).numpy()
+        assert model_x.shape == (frames, 3, model_size, model_size)
+        dS0, dS, dR0, dR = model.run(None, {"images": model_x})
         assert (dS0.shape, dS.shape, dR0.shape, dR.shape) == ((1, 3, 128, 128), (1, 53, 3, 128, 128), (1, 3, 128, 128), (1, 53, 3, 128, 128))
         assert all(np.isfinite(t).all() for t in (dS0, dS, dR0, dR))
         covered = torch.from_numpy(face_model.fixture.parsing_map[0] > 0)

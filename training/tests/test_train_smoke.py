@@ -359,3 +359,19 @@ def test_bf16_on_a_cpu_without_it_is_warned_about(tmp_path, monkeypatch, capsys)
     train.main(["--out", str(tmp_path / "run"), "--precision", "fp32"])
     assert "emulated" not in capsys.readouterr().err
     assert ran == ["bf16", "bf16", "fp32"]
+
+
+def test_a_tracknet_for_more_pixels_starts_from_a_smaller_ones_trunk_in_the_warm_up_alone(tmp_path):
+    """--input-size 160 with --init-track-from a 128 px run: the trunk's weights carried
+    (widen.resize_track_input resamples the heads), the warm-up runs on 160 px images, and
+    stages 1 and 2 are refused by name (ModelNet reads 128 or 224 px)."""
+    first = Trainer(_config(landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0), tmp_path / "first")
+    first.save()
+    large = Trainer(_config(input_size=160, landmark_warmup_steps=1, stage1_steps=0, stage2_steps=0, init_track_from=str(first.checkpoint_path)), tmp_path / "large")
+    source = first.track.state_dict()
+    assert all(torch.equal(v, source[k]) for k, v in large.track.state_dict().items() if k.startswith("encoder."))
+    assert large.track.encoder.out_features == first.track.encoder.out_features * 25 // 16
+    large.run(log_every=1)
+    assert large.step == 1
+    with pytest.raises(ValueError, match="stages 1 and 2"):
+        Trainer(_config(input_size=160), tmp_path / "staged")

@@ -57,9 +57,11 @@ pub const MANIFEST: Asset = Asset {
     what: "the networks' manifest",
     source: Source::Project,
 };
+/// The browser's TrackNet (`manifest.json`'s `web_track_net`: 128 px where native tracking
+/// reads 160 px, for the page's frame rate).
 pub const TRACK_NET: Asset = Asset {
-    url: "models/track_net.onnx",
-    what: "TrackNet",
+    url: "models/track_net_web.onnx",
+    what: "TrackNet (the browser's)",
     source: Source::Project,
 };
 pub const MODEL_NET: Asset = Asset {
@@ -254,7 +256,7 @@ mod tests {
             "no project file is missing: {text}"
         );
         let project = missing_message(&[TRACK_NET]);
-        assert!(project.contains("models/track_net.onnx") && project.contains("assets/"));
+        assert!(project.contains("models/track_net_web.onnx") && project.contains("assets/"));
         assert!(!project.contains("ICT-FaceKit"));
     }
 }

@@ -263,6 +263,19 @@ fn make_scene(fetched: &mut Fetched) -> Result<Scene, String> {
         .map_err(|_| format!("{}: not UTF-8 text", crate::MANIFEST.url))?;
     let manifest = tracking::networks::Manifest::from_json(Path::new("models"), &manifest_text)
         .map_err(|e| e.to_string())?;
+    // The browser runs its own TrackNet (crate::TRACK_NET), whose size the manifest gives.
+    let expected = crate::TRACK_NET.url.trim_start_matches("models/");
+    match &manifest.web_track_net {
+        Some(web) if web.file == expected => {}
+        other => {
+            return Err(format!(
+                "{}: names {} as the browser's TrackNet, the page fetches {expected}; export the models again (python -m likeness_train.export)",
+                crate::MANIFEST.url,
+                other.as_ref().map_or("no file", |w| w.file.as_str())
+            ));
+        }
+    }
+    let manifest = manifest.for_web();
     let mediapipe = mediapipe_bytes(fetched, &template);
     let mut named = |asset: &Asset| -> Result<NamedBytes, String> {
         let bytes = fetched
